@@ -1,0 +1,601 @@
+//! Traversal costs and cost maps.
+//!
+//! A [`TraversalMap`] says what entering each cell costs per metre (infinite
+//! where a robot may not go); a [`CostMap`] holds the cumulative cost of the
+//! cheapest 8-connected path from a source to every cell. Burgard et al.
+//! 2005, §II-A compute it by deterministic value iteration,
+//!
+//! V(x,y) ← min { V(x+Δx, y+Δy) + √(Δx²+Δy²) · P(occ(x+Δx, y+Δy)) },
+//!
+//! repeated until convergence; we reach the same fixed point with Dijkstra's
+//! label-setting order (costs are non-negative), in O(N log N) instead of
+//! O(N) per sweep times the number of sweeps. With a constant cost of one per
+//! metre the same routine is the wavefront of Yamauchi and Bautin et al. 2011.
+//! A diagonal step needs both cells beside it passable: robots do not cut
+//! corners.
+
+use std::collections::{BinaryHeap, HashMap};
+use std::sync::Arc;
+
+use crate::grid::{Cell, CellClass, GridFrame, NEIGHBOURS_8, OccupancyGrid, UNKNOWN, classify};
+
+/// What entering each cell costs, per metre; `f32::INFINITY` where impassable.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TraversalMap {
+    frame: GridFrame,
+    cost_per_metre: Vec<f32>,
+}
+
+impl TraversalMap {
+    /// Known free cells cost 1 per metre; everything else is impassable, and
+    /// so is every cell within `footprint_radius_m` of an occupied cell (the
+    /// configuration space of a circular robot, Bautin et al. 2011 §IV-B).
+    pub fn free_space(grid: &OccupancyGrid, footprint_radius_m: f64) -> Self {
+        let frame = *grid.frame();
+        let mut cost_per_metre: Vec<f32> = grid
+            .cells()
+            .iter()
+            .map(|&v| {
+                if classify(v) == CellClass::Free {
+                    1.0
+                } else {
+                    f32::INFINITY
+                }
+            })
+            .collect();
+        inflate_obstacles(grid, footprint_radius_m, &mut cost_per_metre);
+        Self {
+            frame,
+            cost_per_metre,
+        }
+    }
+
+    /// Burgard et al. 2005, §II-A: a known cell with P(occ) ≤ `occ_max` may be
+    /// traversed at a cost proportional to its occupancy probability, taken
+    /// from the map smoothed by a Gaussian of `smoothing_sigma_m` (so narrow
+    /// passages and cells near walls cost more). Passability is decided on the
+    /// unsmoothed map, so smoothing never opens a thin wall. Unknown cells are
+    /// impassable and count as P = 0.5 in the smoothing.
+    pub fn burgard(
+        grid: &OccupancyGrid,
+        occ_max: f64,
+        smoothing_sigma_m: f64,
+        footprint_radius_m: f64,
+    ) -> Self {
+        let frame = *grid.frame();
+        let probabilities: Vec<f32> = grid
+            .cells()
+            .iter()
+            .map(|&v| {
+                if v == UNKNOWN {
+                    0.5
+                } else {
+                    f32::from(v) / 100.0
+                }
+            })
+            .collect();
+        let sigma_cells = smoothing_sigma_m / frame.resolution;
+        let smoothed = gaussian_blur(
+            &probabilities,
+            frame.width as usize,
+            frame.height as usize,
+            sigma_cells,
+        );
+        let occ_max_percent = (occ_max * 100.0).round().clamp(0.0, 100.0) as u8;
+        let mut cost_per_metre: Vec<f32> = grid
+            .cells()
+            .iter()
+            .zip(&smoothed)
+            .map(|(&v, &p)| {
+                if v == UNKNOWN || v > occ_max_percent {
+                    f32::INFINITY
+                } else {
+                    p
+                }
+            })
+            .collect();
+        inflate_obstacles(grid, footprint_radius_m, &mut cost_per_metre);
+        Self {
+            frame,
+            cost_per_metre,
+        }
+    }
+
+    /// A traversal map from explicit per-cell costs (`f32::INFINITY` = impassable).
+    ///
+    /// # Panics
+    /// If there is not one cost per cell, or a cost is negative or NaN.
+    pub fn from_costs(frame: GridFrame, cost_per_metre: Vec<f32>) -> Self {
+        assert_eq!(cost_per_metre.len(), frame.len(), "one cost per cell");
+        assert!(
+            cost_per_metre.iter().all(|c| *c >= 0.0),
+            "costs are non-negative numbers"
+        );
+        Self {
+            frame,
+            cost_per_metre,
+        }
+    }
+
+    /// The grid frame.
+    pub fn frame(&self) -> &GridFrame {
+        &self.frame
+    }
+
+    /// Whether a robot may enter an on-grid cell.
+    pub fn passable(&self, cell: Cell) -> bool {
+        self.frame.contains(cell) && self.cost_per_metre[self.frame.index(cell)].is_finite()
+    }
+
+    /// Cost per metre of entering an on-grid cell.
+    pub fn cost_per_metre(&self, cell: Cell) -> f32 {
+        self.cost_per_metre[self.frame.index(cell)]
+    }
+}
+
+/// Marks every cell within `radius_m` of an occupied cell impassable.
+fn inflate_obstacles(grid: &OccupancyGrid, radius_m: f64, cost: &mut [f32]) {
+    let frame = grid.frame();
+    let r = radius_m / frame.resolution;
+    // A robot whose footprint fits in its cell needs no inflation.
+    if r < 0.5 {
+        return;
+    }
+    let reach = r.floor() as i32;
+    let r_sq = r * r;
+    let offsets: Vec<(i32, i32)> = (-reach..=reach)
+        .flat_map(|dy| (-reach..=reach).map(move |dx| (dx, dy)))
+        .filter(|&(dx, dy)| f64::from(dx * dx + dy * dy) <= r_sq)
+        .collect();
+    for (i, &v) in grid.cells().iter().enumerate() {
+        if classify(v) != CellClass::Occupied {
+            continue;
+        }
+        let c = frame.cell(i);
+        // Only occupied cells bordering a non-occupied one can inflate anything new.
+        let on_edge = NEIGHBOURS_8.iter().any(|&(dx, dy)| {
+            let n = Cell::new(c.x + dx, c.y + dy);
+            frame.contains(n) && classify(grid.value(n)) != CellClass::Occupied
+        });
+        if !on_edge {
+            continue;
+        }
+        for &(dx, dy) in &offsets {
+            let n = Cell::new(c.x + dx, c.y + dy);
+            if frame.contains(n) {
+                cost[frame.index(n)] = f32::INFINITY;
+            }
+        }
+    }
+}
+
+/// Separable Gaussian blur with σ in cells (no blur below σ = 0.1); edges
+/// repeat the border value.
+pub fn gaussian_blur(values: &[f32], width: usize, height: usize, sigma: f64) -> Vec<f32> {
+    if sigma < 0.1 {
+        return values.to_vec();
+    }
+    let radius = (3.0 * sigma).ceil() as isize;
+    let kernel: Vec<f32> = (-radius..=radius)
+        .map(|k| (-((k * k) as f64) / (2.0 * sigma * sigma)).exp() as f32)
+        .collect();
+    let total: f32 = kernel.iter().sum();
+    let kernel: Vec<f32> = kernel.iter().map(|k| k / total).collect();
+    let mut tmp = vec![0.0f32; values.len()];
+    for y in 0..height {
+        let row = &values[y * width..(y + 1) * width];
+        for x in 0..width {
+            let mut acc = 0.0;
+            for (k, w) in kernel.iter().enumerate() {
+                let xx = (x as isize + k as isize - radius).clamp(0, width as isize - 1) as usize;
+                acc += w * row[xx];
+            }
+            tmp[y * width + x] = acc;
+        }
+    }
+    let mut out = vec![0.0f32; values.len()];
+    for y in 0..height {
+        for x in 0..width {
+            let mut acc = 0.0;
+            for (k, w) in kernel.iter().enumerate() {
+                let yy = (y as isize + k as isize - radius).clamp(0, height as isize - 1) as usize;
+                acc += w * tmp[yy * width + x];
+            }
+            out[y * width + x] = acc;
+        }
+    }
+    out
+}
+
+/// Cumulative cost of the cheapest path from the sources to every cell.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CostMap {
+    frame: GridFrame,
+    cost: Vec<f32>,
+}
+
+impl CostMap {
+    /// The cost of reaching an on-grid cell, or `None` if it cannot be reached.
+    pub fn cost(&self, cell: Cell) -> Option<f64> {
+        if !self.frame.contains(cell) {
+            return None;
+        }
+        let c = self.cost[self.frame.index(cell)];
+        c.is_finite().then_some(f64::from(c))
+    }
+
+    /// Cost at a row-major index (`f32::INFINITY` when unreachable).
+    #[inline]
+    pub fn cost_at(&self, index: usize) -> f32 {
+        self.cost[index]
+    }
+
+    /// Every cell's cost, row-major.
+    pub fn costs(&self) -> &[f32] {
+        &self.cost
+    }
+
+    /// The grid frame.
+    pub fn frame(&self) -> &GridFrame {
+        &self.frame
+    }
+
+    /// The cheapest path from a source to `goal` (source first, goal last),
+    /// by steepest descent in the cost map (Burgard et al. 2005, §II-A).
+    /// `None` when `goal` is unreachable.
+    pub fn path_to(&self, traversal: &TraversalMap, goal: Cell) -> Option<Vec<Cell>> {
+        self.cost(goal)?;
+        let mut path = vec![goal];
+        let mut current = goal;
+        loop {
+            let here = self.cost[self.frame.index(current)];
+            if here == 0.0 {
+                break;
+            }
+            let mut best: Option<(f32, Cell)> = None;
+            for (dx, dy) in NEIGHBOURS_8 {
+                let n = Cell::new(current.x + dx, current.y + dy);
+                if !self.frame.contains(n) || !step_allowed(traversal, current, dx, dy) {
+                    continue;
+                }
+                let c = self.cost[self.frame.index(n)];
+                if c < here && best.is_none_or(|(b, _)| c < b) {
+                    best = Some((c, n));
+                }
+            }
+            let (_, next) = best?;
+            path.push(next);
+            current = next;
+        }
+        path.reverse();
+        Some(path)
+    }
+}
+
+/// Whether a diagonal step from `from` by (dx, dy) keeps clear of corners.
+#[inline]
+fn step_allowed(traversal: &TraversalMap, from: Cell, dx: i32, dy: i32) -> bool {
+    dx == 0
+        || dy == 0
+        || (traversal.passable(Cell::new(from.x + dx, from.y))
+            && traversal.passable(Cell::new(from.x, from.y + dy)))
+}
+
+/// A cost map from `sources` (each at cost zero) over `traversal`.
+///
+/// Moving from a cell to one of its eight neighbours costs the step length in
+/// metres times the neighbour's cost per metre; sources are always allowed,
+/// even inside an inflated obstacle, so a robot standing near a wall can
+/// still leave. Ties are broken by cell index, so results are deterministic.
+///
+/// Complexity: O(N log N) for N reachable cells.
+pub fn cost_map(traversal: &TraversalMap, sources: &[Cell]) -> CostMap {
+    let frame = traversal.frame;
+    let (w, h) = (frame.width as i32, frame.height as i32);
+    let mut cost = vec![f32::INFINITY; frame.len()];
+    let mut heap = BinaryHeap::new();
+    for &s in sources {
+        if frame.contains(s) {
+            let i = frame.index(s);
+            cost[i] = 0.0;
+            heap.push(std::cmp::Reverse(key(0.0, i)));
+        }
+    }
+    let orthogonal = frame.resolution as f32;
+    let diagonal = (frame.resolution * std::f64::consts::SQRT_2) as f32;
+    let tcost = &traversal.cost_per_metre;
+    while let Some(std::cmp::Reverse(k)) = heap.pop() {
+        let (c, i) = unkey(k);
+        if c > cost[i] {
+            continue;
+        }
+        let (x, y) = ((i % w as usize) as i32, (i / w as usize) as i32);
+        for (dx, dy) in NEIGHBOURS_8 {
+            let (nx, ny) = (x + dx, y + dy);
+            if nx < 0 || ny < 0 || nx >= w || ny >= h {
+                continue;
+            }
+            let j = ny as usize * w as usize + nx as usize;
+            let step = tcost[j];
+            if !step.is_finite() {
+                continue;
+            }
+            let length = if dx != 0 && dy != 0 {
+                let side_x = y as usize * w as usize + nx as usize;
+                let side_y = ny as usize * w as usize + x as usize;
+                if !tcost[side_x].is_finite() || !tcost[side_y].is_finite() {
+                    continue;
+                }
+                diagonal
+            } else {
+                orthogonal
+            };
+            let next = c + length * step;
+            if next < cost[j] {
+                cost[j] = next;
+                heap.push(std::cmp::Reverse(key(next, j)));
+            }
+        }
+    }
+    CostMap { frame, cost }
+}
+
+/// Orders by cost, then by index: non-negative floats order like their bits.
+#[inline]
+fn key(cost: f32, index: usize) -> u64 {
+    (u64::from(cost.to_bits()) << 32) | index as u64
+}
+
+#[inline]
+fn unkey(k: u64) -> (f32, usize) {
+    (f32::from_bits((k >> 32) as u32), (k & 0xFFFF_FFFF) as usize)
+}
+
+/// Which traversal a cost map was computed over.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum TraversalKind {
+    /// [`TraversalMap::free_space`] for a footprint radius in millimetres.
+    FreeSpace {
+        /// Footprint radius, millimetres.
+        footprint_mm: u32,
+    },
+    /// [`TraversalMap::burgard`] with occ_max in percent, σ and footprint in millimetres.
+    Burgard {
+        /// occ_max, percent.
+        occ_max_percent: u8,
+        /// Smoothing σ, millimetres.
+        sigma_mm: u32,
+        /// Footprint radius, millimetres.
+        footprint_mm: u32,
+    },
+}
+
+impl TraversalKind {
+    /// The free-space traversal for a footprint radius in metres.
+    pub fn free_space(footprint_radius_m: f64) -> Self {
+        Self::FreeSpace {
+            footprint_mm: millimetres(footprint_radius_m),
+        }
+    }
+
+    /// Burgard's traversal (see [`TraversalMap::burgard`]).
+    pub fn burgard(occ_max: f64, smoothing_sigma_m: f64, footprint_radius_m: f64) -> Self {
+        Self::Burgard {
+            occ_max_percent: (occ_max * 100.0).round().clamp(0.0, 100.0) as u8,
+            sigma_mm: millimetres(smoothing_sigma_m),
+            footprint_mm: millimetres(footprint_radius_m),
+        }
+    }
+
+    fn build(self, grid: &OccupancyGrid) -> TraversalMap {
+        match self {
+            Self::FreeSpace { footprint_mm } => {
+                TraversalMap::free_space(grid, metres(footprint_mm))
+            }
+            Self::Burgard {
+                occ_max_percent,
+                sigma_mm,
+                footprint_mm,
+            } => TraversalMap::burgard(
+                grid,
+                f64::from(occ_max_percent) / 100.0,
+                metres(sigma_mm),
+                metres(footprint_mm),
+            ),
+        }
+    }
+}
+
+fn millimetres(m: f64) -> u32 {
+    (m.max(0.0) * 1000.0).round() as u32
+}
+
+fn metres(mm: u32) -> f64 {
+    f64::from(mm) / 1000.0
+}
+
+/// Cost maps for one replanning, each computed once however many policies or
+/// robots ask for it. Built over one grid; throw it away when the grid changes.
+#[derive(Debug)]
+pub struct CostCache<'g> {
+    grid: &'g OccupancyGrid,
+    traversals: HashMap<TraversalKind, Arc<TraversalMap>>,
+    maps: HashMap<(TraversalKind, Cell), Arc<CostMap>>,
+    computed: usize,
+}
+
+impl<'g> CostCache<'g> {
+    /// An empty cache over `grid`.
+    pub fn new(grid: &'g OccupancyGrid) -> Self {
+        Self {
+            grid,
+            traversals: HashMap::new(),
+            maps: HashMap::new(),
+            computed: 0,
+        }
+    }
+
+    /// The grid the cache works on.
+    pub fn grid(&self) -> &'g OccupancyGrid {
+        self.grid
+    }
+
+    /// The traversal map of a kind, built on first use.
+    pub fn traversal(&mut self, kind: TraversalKind) -> Arc<TraversalMap> {
+        let grid = self.grid;
+        self.traversals
+            .entry(kind)
+            .or_insert_with(|| Arc::new(kind.build(grid)))
+            .clone()
+    }
+
+    /// The cost map from `source` over a traversal, computed on first use.
+    pub fn cost_map(&mut self, kind: TraversalKind, source: Cell) -> Arc<CostMap> {
+        if let Some(map) = self.maps.get(&(kind, source)) {
+            return map.clone();
+        }
+        let traversal = self.traversal(kind);
+        let map = Arc::new(cost_map(&traversal, &[source]));
+        self.computed += 1;
+        self.maps.insert((kind, source), map.clone());
+        map
+    }
+
+    /// Cost maps from several sources, the missing ones computed in parallel
+    /// on up to `threads` threads.
+    pub fn cost_maps(
+        &mut self,
+        kind: TraversalKind,
+        sources: &[Cell],
+        threads: usize,
+    ) -> Vec<Arc<CostMap>> {
+        let traversal = self.traversal(kind);
+        let mut missing: Vec<Cell> = sources
+            .iter()
+            .copied()
+            .filter(|s| !self.maps.contains_key(&(kind, *s)))
+            .collect();
+        missing.sort_unstable();
+        missing.dedup();
+        let threads = threads.clamp(1, missing.len().max(1));
+        if threads > 1 {
+            let chunk = missing.len().div_ceil(threads);
+            let computed: Vec<(Cell, CostMap)> = std::thread::scope(|scope| {
+                let handles: Vec<_> = missing
+                    .chunks(chunk)
+                    .map(|part| {
+                        let traversal = &traversal;
+                        scope.spawn(move || {
+                            part.iter()
+                                .map(|&s| (s, cost_map(traversal, &[s])))
+                                .collect::<Vec<_>>()
+                        })
+                    })
+                    .collect();
+                handles
+                    .into_iter()
+                    .flat_map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
+                    .collect()
+            });
+            for (s, map) in computed {
+                self.computed += 1;
+                self.maps.insert((kind, s), Arc::new(map));
+            }
+        }
+        sources.iter().map(|&s| self.cost_map(kind, s)).collect()
+    }
+
+    /// How many cost maps were computed (not served from the cache).
+    pub fn computed(&self) -> usize {
+        self.computed
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::testing::grid_from_picture;
+
+    #[test]
+    fn free_space_costs_are_path_lengths_and_walls_force_detours() {
+        let grid = grid_from_picture(&[
+            ".....", //
+            ".###.", //
+            ".....", //
+        ]);
+        let t = TraversalMap::free_space(&grid, 0.0);
+        let map = cost_map(&t, &[Cell::new(0, 1)]);
+        // Straight up the left column: 1 cell.
+        assert_eq!(map.cost(Cell::new(0, 2)), Some(1.0));
+        // Around the wall: up, four cells right, down. The diagonals past the
+        // wall's ends would cut its corners.
+        assert_eq!(map.cost(Cell::new(4, 1)), Some(6.0));
+        assert_eq!(map.cost(Cell::new(2, 1)), None, "walls are unreachable");
+        let path = map.path_to(&t, Cell::new(4, 1)).unwrap();
+        assert_eq!(path.first(), Some(&Cell::new(0, 1)));
+        assert_eq!(path.last(), Some(&Cell::new(4, 1)));
+        for pair in path.windows(2) {
+            assert!(pair[0].distance(pair[1]) < 1.5);
+            assert!(t.passable(pair[1]));
+        }
+    }
+
+    #[test]
+    fn corners_are_not_cut() {
+        let grid = grid_from_picture(&[
+            ".#", //
+            "#.", //
+        ]);
+        let t = TraversalMap::free_space(&grid, 0.0);
+        let map = cost_map(&t, &[Cell::new(0, 1)]);
+        assert_eq!(map.cost(Cell::new(1, 0)), None);
+    }
+
+    #[test]
+    fn burgard_costs_grow_with_occupancy_and_occ_max_blocks() {
+        let frame = GridFrame::new(1.0, crate::math::Point2::origin(), 3, 1);
+        let grid = OccupancyGrid::from_cells(frame, vec![10, 50, 10]);
+        let open = TraversalMap::burgard(&grid, 0.6, 0.0, 0.0);
+        let map = cost_map(&open, &[Cell::new(0, 0)]);
+        assert!((map.cost(Cell::new(1, 0)).unwrap() - 0.5).abs() < 1e-6);
+        assert!((map.cost(Cell::new(2, 0)).unwrap() - 0.6).abs() < 1e-6);
+        let strict = TraversalMap::burgard(&grid, 0.4, 0.0, 0.0);
+        assert_eq!(
+            cost_map(&strict, &[Cell::new(0, 0)]).cost(Cell::new(2, 0)),
+            None
+        );
+    }
+
+    #[test]
+    fn inflation_closes_gaps_narrower_than_the_robot() {
+        let grid = grid_from_picture(&[
+            "#####.#####", //
+            "...........", //
+            "...........", //
+        ]);
+        let thin = TraversalMap::free_space(&grid, 0.0);
+        assert!(thin.passable(Cell::new(5, 2)));
+        let wide = TraversalMap::free_space(&grid, 1.0);
+        assert!(!wide.passable(Cell::new(5, 2)));
+        assert!(!wide.passable(Cell::new(3, 1)));
+        assert!(wide.passable(Cell::new(3, 0)));
+    }
+
+    #[test]
+    fn the_cache_computes_each_map_once() {
+        let grid = grid_from_picture(&["....", "...."]);
+        let mut cache = CostCache::new(&grid);
+        let kind = TraversalKind::free_space(0.0);
+        let a = cache.cost_map(kind, Cell::new(0, 0));
+        let b = cache.cost_map(kind, Cell::new(0, 0));
+        assert!(Arc::ptr_eq(&a, &b));
+        let many = cache.cost_maps(
+            kind,
+            &[Cell::new(0, 0), Cell::new(3, 1), Cell::new(2, 0)],
+            2,
+        );
+        assert_eq!(many.len(), 3);
+        assert_eq!(cache.computed(), 3);
+        assert_eq!(many[1].cost(Cell::new(3, 1)), Some(0.0));
+    }
+}

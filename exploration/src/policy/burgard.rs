@@ -1,0 +1,225 @@
+//! `burgard`: coordinated exploration by utility discounting.
+//!
+//! Burgard, Moors, Stachniss & Schneider 2005, "Coordinated multi-robot
+//! exploration", Algorithm 1. Every frontier cell t starts with utility
+//! U_t = 1. Repeatedly the pair (robot i, frontier cell t) maximizing
+//! U_t − β·V_t^i is chosen (line 5), where V^i is robot i's cost map by
+//! deterministic value iteration over P(occ) (§II-A); then the utility of
+//! every frontier cell t' that t's sensor would cover drops by
+//! P(‖t − t'‖) (line 6, Eq. 1), with
+//!
+//! P(d) = 1 − d / max_range  if d < max_range, else 0          (Eq. 2)
+//!
+//! and P set to zero when an obstacle lies between t and t' (found by ray
+//! casting). V is measured in metres × P(occ), so β does not depend on the
+//! grid resolution (at the paper's 15 cm cells, V in cells is V/0.15).
+
+use super::{Plan, PlanningInput, Policy, Target};
+use crate::cost::{CostCache, TraversalKind};
+use crate::grid::{Cell, CellClass};
+use crate::visibility::line_of_sight;
+
+pub(super) const NAME: &str = "burgard";
+
+/// Burgard et al. 2005, Algorithm 1, with Eqs. 1–2.
+/// Complexity: one cost map per robot plus O(n²·T) for n robots, T frontier cells.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Burgard {
+    /// β ≥ 0, the weight of cost against utility (Algorithm 1, line 5).
+    pub beta: f64,
+    /// occ_max: cells with a higher P(occ) are not traversable (§II-A).
+    pub occ_max: f64,
+    /// σ of the Gaussian the map is smoothed with (§II-A), metres.
+    pub smoothing_sigma_m: f64,
+}
+
+/// P(d) of Eq. 2: the probability that a sensor of range `max_range` covers
+/// a cell at distance `d` from where it stands.
+pub fn coverage_probability(d: f64, max_range: f64) -> f64 {
+    if d < max_range && max_range > 0.0 {
+        1.0 - d / max_range
+    } else {
+        0.0
+    }
+}
+
+impl Policy for Burgard {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
+        let frontier = input.frontier_cells();
+        let grid = input.grid;
+        let resolution = grid.frame().resolution;
+        // Line 2: V_t^i for every robot and frontier cell.
+        let kinds: Vec<TraversalKind> = input
+            .robots
+            .iter()
+            .map(|r| {
+                TraversalKind::burgard(
+                    self.occ_max,
+                    self.smoothing_sigma_m,
+                    r.capabilities.footprint_radius_m,
+                )
+            })
+            .collect();
+        let values: Vec<Vec<Option<f64>>> = input
+            .robots
+            .iter()
+            .zip(&kinds)
+            .map(|(robot, &kind)| {
+                let map = costs.cost_map(kind, robot.cell);
+                frontier.iter().map(|&t| map.cost(t)).collect()
+            })
+            .collect();
+        // Line 3: all utilities start at 1.
+        let mut utility = vec![1.0f64; frontier.len()];
+        let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
+        let opaque = |c: Cell| grid.class_or_wall(c) == CellClass::Occupied;
+        // Line 4: while a robot is left without a target.
+        loop {
+            let mut best: Option<(f64, usize, usize)> = None;
+            for (i, row) in values.iter().enumerate() {
+                if targets[i].is_some() {
+                    continue;
+                }
+                for (t, v) in row.iter().enumerate() {
+                    let Some(v) = v else { continue };
+                    let score = utility[t] - self.beta * v;
+                    // Strictly greater: ties go to the lower robot, then the lower cell.
+                    if best.is_none_or(|(b, _, _)| score > b) {
+                        best = Some((score, i, t));
+                    }
+                }
+            }
+            // Robots that cannot reach any frontier cell stay without a target.
+            let Some((score, i, t)) = best else { break };
+            let chosen = frontier[t];
+            targets[i] = Some(Target {
+                cell: chosen,
+                utility: score,
+                path_cost: values[i][t].unwrap_or(0.0),
+                gain_region: None,
+            });
+            // Line 6, Eq. 1: discount what the chosen target's sensor would cover.
+            let max_range = input.robots[i].capabilities.sensor_range_m;
+            let range_cells = max_range / resolution;
+            let range_cells_sq = (range_cells * range_cells).ceil() as i64;
+            for (u, &other) in utility.iter_mut().zip(&frontier) {
+                if chosen.distance_squared(other) > range_cells_sq {
+                    continue;
+                }
+                let d = chosen.distance(other) * resolution;
+                let p = coverage_probability(d, max_range);
+                if p > 0.0 && line_of_sight(chosen, other, opaque) {
+                    *u -= p;
+                }
+            }
+        }
+        Plan { targets }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::testing::grid_from_picture;
+    use crate::policy::Nearest;
+    use crate::policy::testing::{plan_targets, robot};
+
+    fn burgard() -> Burgard {
+        Burgard {
+            beta: 1.0,
+            occ_max: 0.6,
+            smoothing_sigma_m: 0.0,
+        }
+    }
+
+    #[test]
+    fn coverage_probability_follows_eq_2() {
+        assert_eq!(coverage_probability(0.0, 5.0), 1.0);
+        assert!((coverage_probability(2.5, 5.0) - 0.5).abs() < 1e-12);
+        assert_eq!(coverage_probability(5.0, 5.0), 0.0);
+        assert_eq!(coverage_probability(7.0, 5.0), 0.0);
+    }
+
+    /// Burgard et al. 2005, Figs. 1–2: two robots whose cheapest frontier is
+    /// the same cell. Uncoordinated, both go there; coordinated, the second
+    /// one's utility there is discounted and it takes the other way.
+    #[test]
+    fn two_robots_with_the_same_nearest_target_split() {
+        // A corridor 1 m per cell: unknown at both ends; both robots near the left end.
+        let grid = grid_from_picture(&[
+            "##############", //
+            "?............?", //
+            "##############", //
+        ]);
+        let robots = [
+            robot(0, Cell::new(3, 1), 5.0),
+            robot(1, Cell::new(4, 1), 5.0),
+        ];
+        let uncoordinated = plan_targets(&Nearest, &grid, &robots);
+        assert_eq!(
+            uncoordinated,
+            vec![Some(Cell::new(1, 1)), Some(Cell::new(1, 1))]
+        );
+        let coordinated = plan_targets(&burgard(), &grid, &robots);
+        assert_eq!(coordinated[0], Some(Cell::new(1, 1)), "{coordinated:?}");
+        assert_eq!(coordinated[1], Some(Cell::new(12, 1)), "{coordinated:?}");
+    }
+
+    /// Eq. 1 with ray casting: a frontier cell behind a wall is not covered
+    /// by a sensor at the chosen target, so its utility is not discounted,
+    /// while the same cell in the open is.
+    #[test]
+    fn walls_keep_utilities_apart() {
+        use crate::cost::CostCache;
+        use crate::frontier::{FrontierMap, clusters};
+        use crate::policy::PlanningInput;
+
+        let second_robot_utility = |picture: &[&str]| {
+            let grid = grid_from_picture(picture);
+            let frontier = FrontierMap::detect(&grid);
+            let clusters = clusters(&frontier, 1);
+            let robots = [
+                robot(0, Cell::new(1, 0), 3.0),
+                robot(1, Cell::new(3, 0), 3.0),
+            ];
+            let input = PlanningInput {
+                grid: &grid,
+                clusters: &clusters,
+                robots: &robots,
+                threads: 1,
+            };
+            let plan = burgard().plan(&input, &mut CostCache::new(&grid));
+            let first = plan.targets[0].unwrap();
+            let second = plan.targets[1].unwrap();
+            assert_eq!(first.cell, Cell::new(1, 2));
+            assert_eq!(second.cell, Cell::new(3, 2));
+            second.utility + second.path_cost
+        };
+        // Frontier cells (1,2) and (3,2), two cells apart, with a wall between.
+        let walled = second_robot_utility(&[
+            "#?#?#", //
+            "#.#.#", //
+            "#.#.#", //
+            "#...#", //
+        ]);
+        assert!(
+            (walled - 1.0).abs() < 1e-9,
+            "behind a wall: undiscounted, got {walled}"
+        );
+        let open = second_robot_utility(&[
+            "#?#?#", //
+            "#...#", //
+            "#...#", //
+            "#...#", //
+        ]);
+        // In the open, (3,2) is 2 m from (1,2): U = 1 − (1 − 2/3) = 2/3.
+        assert!(
+            (open - 2.0 / 3.0).abs() < 1e-9,
+            "in the open: discounted, got {open}"
+        );
+    }
+}
