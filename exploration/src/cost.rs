@@ -20,10 +20,54 @@ use std::sync::Arc;
 use crate::grid::{Cell, CellClass, GridFrame, NEIGHBOURS_8, OccupancyGrid, UNKNOWN, classify};
 
 /// What entering each cell costs, per metre; `f32::INFINITY` where impassable.
+///
+/// Stored with a one-cell impassable border around the grid, so that the
+/// cost-map loops need no bounds checks.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TraversalMap {
     frame: GridFrame,
-    cost_per_metre: Vec<f32>,
+    /// (width + 2) × (height + 2) costs, row-major, border infinite.
+    padded: Vec<f32>,
+    /// The same cells' passability as bits: small enough to stay in cache.
+    passable_bits: Vec<u64>,
+    /// Smallest and largest finite cost per metre.
+    step_range: (f32, f32),
+}
+
+/// Row-major index of `cell` in a grid padded by one cell on every side.
+#[inline]
+fn padded_index(frame: &GridFrame, cell: Cell) -> usize {
+    (cell.y + 1) as usize * (frame.width as usize + 2) + (cell.x + 1) as usize
+}
+
+impl TraversalMap {
+    fn from_unpadded(frame: GridFrame, cost_per_metre: &[f32]) -> Self {
+        let padded = pad(&frame, cost_per_metre);
+        let mut passable_bits = vec![0u64; padded.len().div_ceil(64)];
+        let mut step_range = (f32::INFINITY, 0.0f32);
+        for (i, &c) in padded.iter().enumerate() {
+            if c.is_finite() {
+                passable_bits[i / 64] |= 1 << (i % 64);
+                step_range = (step_range.0.min(c), step_range.1.max(c));
+            }
+        }
+        Self {
+            frame,
+            padded,
+            passable_bits,
+            step_range,
+        }
+    }
+}
+
+fn pad(frame: &GridFrame, values: &[f32]) -> Vec<f32> {
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    let stride = w + 2;
+    let mut padded = vec![f32::INFINITY; stride * (h + 2)];
+    for (y, row) in values.chunks_exact(w).enumerate() {
+        padded[(y + 1) * stride + 1..(y + 1) * stride + 1 + w].copy_from_slice(row);
+    }
+    padded
 }
 
 impl TraversalMap {
@@ -44,10 +88,7 @@ impl TraversalMap {
             })
             .collect();
         inflate_obstacles(grid, footprint_radius_m, &mut cost_per_metre);
-        Self {
-            frame,
-            cost_per_metre,
-        }
+        Self::from_unpadded(frame, &cost_per_metre)
     }
 
     /// Burgard et al. 2005, §II-A: a known cell with P(occ) ≤ `occ_max` may be
@@ -95,10 +136,7 @@ impl TraversalMap {
             })
             .collect();
         inflate_obstacles(grid, footprint_radius_m, &mut cost_per_metre);
-        Self {
-            frame,
-            cost_per_metre,
-        }
+        Self::from_unpadded(frame, &cost_per_metre)
     }
 
     /// A traversal map from explicit per-cell costs (`f32::INFINITY` = impassable).
@@ -111,10 +149,7 @@ impl TraversalMap {
             cost_per_metre.iter().all(|c| *c >= 0.0),
             "costs are non-negative numbers"
         );
-        Self {
-            frame,
-            cost_per_metre,
-        }
+        Self::from_unpadded(frame, &cost_per_metre)
     }
 
     /// The grid frame.
@@ -122,14 +157,15 @@ impl TraversalMap {
         &self.frame
     }
 
-    /// Whether a robot may enter an on-grid cell.
+    /// Whether a robot may enter a cell (never off the grid).
+    #[inline]
     pub fn passable(&self, cell: Cell) -> bool {
-        self.frame.contains(cell) && self.cost_per_metre[self.frame.index(cell)].is_finite()
+        self.frame.contains(cell) && self.padded[padded_index(&self.frame, cell)].is_finite()
     }
 
     /// Cost per metre of entering an on-grid cell.
     pub fn cost_per_metre(&self, cell: Cell) -> f32 {
-        self.cost_per_metre[self.frame.index(cell)]
+        self.padded[padded_index(&self.frame, cell)]
     }
 }
 
@@ -211,33 +247,29 @@ pub fn gaussian_blur(values: &[f32], width: usize, height: usize, sigma: f64) ->
 #[derive(Debug, Clone, PartialEq)]
 pub struct CostMap {
     frame: GridFrame,
+    /// Padded like [`TraversalMap`]; infinite where unreachable.
     cost: Vec<f32>,
 }
 
 impl CostMap {
     /// The cost of reaching an on-grid cell, or `None` if it cannot be reached.
+    #[inline]
     pub fn cost(&self, cell: Cell) -> Option<f64> {
         if !self.frame.contains(cell) {
             return None;
         }
-        let c = self.cost[self.frame.index(cell)];
+        let c = self.cost[padded_index(&self.frame, cell)];
         c.is_finite().then_some(f64::from(c))
-    }
-
-    /// Cost at a row-major index (`f32::INFINITY` when unreachable).
-    #[inline]
-    pub fn cost_at(&self, index: usize) -> f32 {
-        self.cost[index]
-    }
-
-    /// Every cell's cost, row-major.
-    pub fn costs(&self) -> &[f32] {
-        &self.cost
     }
 
     /// The grid frame.
     pub fn frame(&self) -> &GridFrame {
         &self.frame
+    }
+
+    /// Number of reachable cells.
+    pub fn reachable_cells(&self) -> usize {
+        self.cost.iter().filter(|c| c.is_finite()).count()
     }
 
     /// The cheapest path from a source to `goal` (source first, goal last),
@@ -248,17 +280,21 @@ impl CostMap {
         let mut path = vec![goal];
         let mut current = goal;
         loop {
-            let here = self.cost[self.frame.index(current)];
+            let here = self.cost[padded_index(&self.frame, current)];
             if here == 0.0 {
                 break;
             }
             let mut best: Option<(f32, Cell)> = None;
             for (dx, dy) in NEIGHBOURS_8 {
                 let n = Cell::new(current.x + dx, current.y + dy);
-                if !self.frame.contains(n) || !step_allowed(traversal, current, dx, dy) {
+                let diagonal_clear = dx == 0
+                    || dy == 0
+                    || (traversal.passable(Cell::new(current.x + dx, current.y))
+                        && traversal.passable(Cell::new(current.x, current.y + dy)));
+                if !self.frame.contains(n) || !diagonal_clear {
                     continue;
                 }
-                let c = self.cost[self.frame.index(n)];
+                let c = self.cost[padded_index(&self.frame, n)];
                 if c < here && best.is_none_or(|(b, _)| c < b) {
                     best = Some((c, n));
                 }
@@ -272,72 +308,250 @@ impl CostMap {
     }
 }
 
-/// Whether a diagonal step from `from` by (dx, dy) keeps clear of corners.
-#[inline]
-fn step_allowed(traversal: &TraversalMap, from: Cell, dx: i32, dy: i32) -> bool {
-    dx == 0
-        || dy == 0
-        || (traversal.passable(Cell::new(from.x + dx, from.y))
-            && traversal.passable(Cell::new(from.x, from.y + dy)))
+/// Whether a diagonal step may pass a corner where one side cell is blocked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Corners {
+    /// A diagonal step needs both side cells passable: robots do not cut corners.
+    #[default]
+    Keep,
+    /// A diagonal step needs only its end cells passable (scikit-image's
+    /// `MCP_Geometric` and scipy's graph semantics, for the benchmarks).
+    Cut,
+}
+
+/// A cost map from `sources` (each at cost zero) over `traversal`, without
+/// cutting corners. See [`cost_map_with`].
+pub fn cost_map(traversal: &TraversalMap, sources: &[Cell]) -> CostMap {
+    cost_map_with(traversal, sources, Corners::Keep)
 }
 
 /// A cost map from `sources` (each at cost zero) over `traversal`.
 ///
 /// Moving from a cell to one of its eight neighbours costs the step length in
-/// metres times the neighbour's cost per metre; sources are always allowed,
+/// metres times the neighbour's cost per metre. Sources are always allowed,
 /// even inside an inflated obstacle, so a robot standing near a wall can
-/// still leave. Ties are broken by cell index, so results are deterministic.
+/// still leave.
 ///
-/// Complexity: O(N log N) for N reachable cells.
-pub fn cost_map(traversal: &TraversalMap, sources: &[Cell]) -> CostMap {
+/// Labels are settled in buckets as wide as the cheapest possible step
+/// (Dial 1969): a cell in the current bucket cannot improve another cell of
+/// the same bucket, since any step leads at least one bucket further, so the
+/// result equals Dijkstra's, in O(1) per relaxation. When step costs span too
+/// wide a range for a small ring of buckets, a binary heap is used instead.
+///
+/// Complexity: O(N) with buckets, O(N log N) with the heap, for N reachable cells.
+pub fn cost_map_with(traversal: &TraversalMap, sources: &[Cell], corners: Corners) -> CostMap {
     let frame = traversal.frame;
-    let (w, h) = (frame.width as i32, frame.height as i32);
-    let mut cost = vec![f32::INFINITY; frame.len()];
-    let mut heap = BinaryHeap::new();
-    for &s in sources {
-        if frame.contains(s) {
-            let i = frame.index(s);
-            cost[i] = 0.0;
-            heap.push(std::cmp::Reverse(key(0.0, i)));
-        }
+    let mut cost = vec![f32::INFINITY; traversal.padded.len()];
+    let starts: Vec<usize> = sources
+        .iter()
+        .filter(|s| frame.contains(**s))
+        .map(|&s| padded_index(&frame, s))
+        .collect();
+    for &i in &starts {
+        cost[i] = 0.0;
     }
+    let (min_step, max_step) = traversal.step_range;
     let orthogonal = frame.resolution as f32;
     let diagonal = (frame.resolution * std::f64::consts::SQRT_2) as f32;
-    let tcost = &traversal.cost_per_metre;
-    while let Some(std::cmp::Reverse(k)) = heap.pop() {
-        let (c, i) = unkey(k);
-        if c > cost[i] {
-            continue;
+    let stride = frame.width as usize + 2;
+    let uniform = min_step == max_step;
+    let cut = corners == Corners::Cut;
+    let weighted = Weighted {
+        costs: &traversal.padded,
+        bits: &traversal.passable_bits,
+        stride,
+        orthogonal,
+        diagonal,
+    };
+    let constant = Uniform {
+        bits: &traversal.passable_bits,
+        stride,
+        orthogonal: orthogonal * min_step,
+        diagonal: diagonal * min_step,
+    };
+    let bounds = (min_step * orthogonal, max_step * diagonal);
+    match (uniform, cut) {
+        (true, true) => settle::<_, true>(&constant, &mut cost, &starts, bounds),
+        (true, false) => settle::<_, false>(&constant, &mut cost, &starts, bounds),
+        (false, true) => settle::<_, true>(&weighted, &mut cost, &starts, bounds),
+        (false, false) => settle::<_, false>(&weighted, &mut cost, &starts, bounds),
+    }
+    CostMap { frame, cost }
+}
+
+/// Whether bit `i` is set.
+#[inline(always)]
+fn bit(bits: &[u64], i: usize) -> bool {
+    bits[i / 64] >> (i % 64) & 1 != 0
+}
+
+/// The eight neighbours of a cell of a padded grid and what stepping there costs.
+trait Neighbourhood {
+    /// Calls `improve(j, c)` for each neighbour `j` of `i` reachable at cost
+    /// `c`; diagonal steps need both side cells passable unless `CUT`.
+    fn neighbours<const CUT: bool>(&self, i: usize, here: f32, improve: impl FnMut(usize, f32));
+}
+
+/// Per-cell costs per metre.
+struct Weighted<'a> {
+    costs: &'a [f32],
+    bits: &'a [u64],
+    stride: usize,
+    orthogonal: f32,
+    diagonal: f32,
+}
+
+impl Neighbourhood for Weighted<'_> {
+    #[inline(always)]
+    fn neighbours<const CUT: bool>(
+        &self,
+        i: usize,
+        here: f32,
+        mut improve: impl FnMut(usize, f32),
+    ) {
+        let s = self.stride;
+        for j in [i + 1, i - 1, i + s, i - s] {
+            if bit(self.bits, j) {
+                improve(j, here + self.orthogonal * self.costs[j]);
+            }
         }
-        let (x, y) = ((i % w as usize) as i32, (i / w as usize) as i32);
-        for (dx, dy) in NEIGHBOURS_8 {
-            let (nx, ny) = (x + dx, y + dy);
-            if nx < 0 || ny < 0 || nx >= w || ny >= h {
-                continue;
-            }
-            let j = ny as usize * w as usize + nx as usize;
-            let step = tcost[j];
-            if !step.is_finite() {
-                continue;
-            }
-            let length = if dx != 0 && dy != 0 {
-                let side_x = y as usize * w as usize + nx as usize;
-                let side_y = ny as usize * w as usize + x as usize;
-                if !tcost[side_x].is_finite() || !tcost[side_y].is_finite() {
-                    continue;
-                }
-                diagonal
-            } else {
-                orthogonal
-            };
-            let next = c + length * step;
-            if next < cost[j] {
-                cost[j] = next;
-                heap.push(std::cmp::Reverse(key(next, j)));
+        for (j, a, b) in [
+            (i + s + 1, i + 1, i + s),
+            (i + s - 1, i - 1, i + s),
+            (i - s + 1, i + 1, i - s),
+            (i - s - 1, i - 1, i - s),
+        ] {
+            if bit(self.bits, j) && (CUT || (bit(self.bits, a) && bit(self.bits, b))) {
+                improve(j, here + self.diagonal * self.costs[j]);
             }
         }
     }
-    CostMap { frame, cost }
+}
+
+/// The same cost per metre everywhere passable: only the passability bits
+/// are read, and they stay in cache.
+struct Uniform<'a> {
+    bits: &'a [u64],
+    stride: usize,
+    orthogonal: f32,
+    diagonal: f32,
+}
+
+impl Neighbourhood for Uniform<'_> {
+    #[inline(always)]
+    fn neighbours<const CUT: bool>(
+        &self,
+        i: usize,
+        here: f32,
+        mut improve: impl FnMut(usize, f32),
+    ) {
+        let s = self.stride;
+        let straight = here + self.orthogonal;
+        for j in [i + 1, i - 1, i + s, i - s] {
+            if bit(self.bits, j) {
+                improve(j, straight);
+            }
+        }
+        let slanted = here + self.diagonal;
+        for (j, a, b) in [
+            (i + s + 1, i + 1, i + s),
+            (i + s - 1, i - 1, i + s),
+            (i - s + 1, i + 1, i - s),
+            (i - s - 1, i - 1, i - s),
+        ] {
+            if bit(self.bits, j) && (CUT || (bit(self.bits, a) && bit(self.bits, b))) {
+                improve(j, slanted);
+            }
+        }
+    }
+}
+
+/// Settles every label from `starts`; `steps` is the cheapest and the
+/// dearest single step. Buckets when a small ring holds the step range, a
+/// binary heap otherwise.
+fn settle<N: Neighbourhood, const CUT: bool>(
+    n: &N,
+    cost: &mut [f32],
+    starts: &[usize],
+    steps: (f32, f32),
+) {
+    // Slightly narrower than the cheapest step, so rounding never puts a
+    // relaxed cell into the bucket being drained.
+    let width = steps.0 * (1.0 - 1e-5);
+    let ring = if width > 0.0 && width.is_finite() {
+        ((steps.1 / width).ceil() as usize).saturating_add(2)
+    } else {
+        usize::MAX
+    };
+    if ring <= 4096 {
+        buckets::<N, CUT>(n, cost, starts, width, ring);
+    } else {
+        heap::<N, CUT>(n, cost, starts);
+    }
+}
+
+fn buckets<N: Neighbourhood, const CUT: bool>(
+    n: &N,
+    cost: &mut [f32],
+    starts: &[usize],
+    width: f32,
+    ring: usize,
+) {
+    // A power-of-two ring turns the bucket's slot into a mask.
+    let ring = ring.next_power_of_two();
+    let slot_mask = ring - 1;
+    let per_bucket = 1.0 / width;
+    let mut rings: Vec<Vec<u32>> = vec![Vec::new(); ring];
+    let mut pending = 0usize;
+    for &i in starts {
+        rings[0].push(i as u32);
+        pending += 1;
+    }
+    let mut current = 0usize;
+    let mut batch = Vec::new();
+    while pending > 0 {
+        let slot = current & slot_mask;
+        while !rings[slot].is_empty() {
+            std::mem::swap(&mut batch, &mut rings[slot]);
+            pending -= batch.len();
+            for &i in &batch {
+                let i = i as usize;
+                let here = cost[i];
+                // Stale entry: the cell was improved into an earlier bucket.
+                if (here * per_bucket) as usize != current {
+                    continue;
+                }
+                n.neighbours::<CUT>(i, here, |j, c| {
+                    if c < cost[j] {
+                        cost[j] = c;
+                        rings[(c * per_bucket) as usize & slot_mask].push(j as u32);
+                        pending += 1;
+                    }
+                });
+            }
+            batch.clear();
+        }
+        current += 1;
+    }
+}
+
+fn heap<N: Neighbourhood, const CUT: bool>(n: &N, cost: &mut [f32], starts: &[usize]) {
+    let mut heap = BinaryHeap::new();
+    for &i in starts {
+        heap.push(std::cmp::Reverse(key(0.0, i)));
+    }
+    while let Some(std::cmp::Reverse(k)) = heap.pop() {
+        let (here, i) = unkey(k);
+        if here > cost[i] {
+            continue;
+        }
+        n.neighbours::<CUT>(i, here, |j, c| {
+            if c < cost[j] {
+                cost[j] = c;
+                heap.push(std::cmp::Reverse(key(c, j)));
+            }
+        });
+    }
 }
 
 /// Orders by cost, then by index: non-negative floats order like their bits.
@@ -349,6 +563,75 @@ fn key(cost: f32, index: usize) -> u64 {
 #[inline]
 fn unkey(k: u64) -> (f32, usize) {
     (f32::from_bits((k >> 32) as u32), (k & 0xFFFF_FFFF) as usize)
+}
+
+/// The shortest 8-connected path from `start` to `goal` over cells where
+/// `passable` holds, by A* with the octile-distance heuristic (Hart, Nilsson
+/// & Raphael 1968). Diagonal steps need both side cells passable, as in
+/// [`cost_map`]; `start` itself is always allowed. Returns the cells from
+/// `start` to `goal`, or `None` when `goal` cannot be reached.
+///
+/// Complexity: O(N log N) in the worst case, far less when the goal is near.
+pub fn shortest_path(
+    frame: &GridFrame,
+    start: Cell,
+    goal: Cell,
+    passable: impl Fn(Cell) -> bool,
+) -> Option<Vec<Cell>> {
+    if !frame.contains(start) || !frame.contains(goal) || !passable(goal) {
+        return None;
+    }
+    let heuristic = |c: Cell| {
+        let dx = (c.x - goal.x).abs() as f32;
+        let dy = (c.y - goal.y).abs() as f32;
+        dx.max(dy) + (std::f32::consts::SQRT_2 - 1.0) * dx.min(dy)
+    };
+    let mut g = vec![f32::INFINITY; frame.len()];
+    let mut parent = vec![u32::MAX; frame.len()];
+    let mut heap = BinaryHeap::new();
+    let s = frame.index(start);
+    g[s] = 0.0;
+    heap.push(std::cmp::Reverse(key(heuristic(start), s)));
+    let goal_index = frame.index(goal);
+    while let Some(std::cmp::Reverse(k)) = heap.pop() {
+        let (_, i) = unkey(k);
+        if i == goal_index {
+            let mut path = vec![goal];
+            let mut j = i;
+            while j != s {
+                j = parent[j] as usize;
+                path.push(frame.cell(j));
+            }
+            path.reverse();
+            return Some(path);
+        }
+        let c = frame.cell(i);
+        for (dx, dy) in NEIGHBOURS_8 {
+            let n = Cell::new(c.x + dx, c.y + dy);
+            if !frame.contains(n) || !passable(n) {
+                continue;
+            }
+            let diagonal = dx != 0 && dy != 0;
+            if diagonal
+                && !(passable(Cell::new(c.x + dx, c.y)) && passable(Cell::new(c.x, c.y + dy)))
+            {
+                continue;
+            }
+            let j = frame.index(n);
+            let next = g[i]
+                + if diagonal {
+                    std::f32::consts::SQRT_2
+                } else {
+                    1.0
+                };
+            if next < g[j] {
+                g[j] = next;
+                parent[j] = i as u32;
+                heap.push(std::cmp::Reverse(key(next + heuristic(n), j)));
+            }
+        }
+    }
+    None
 }
 
 /// Which traversal a cost map was computed over.
@@ -537,6 +820,79 @@ mod tests {
         for pair in path.windows(2) {
             assert!(pair[0].distance(pair[1]) < 1.5);
             assert!(t.passable(pair[1]));
+        }
+    }
+
+    #[test]
+    fn a_star_finds_the_same_length_as_the_cost_map() {
+        let grid = grid_from_picture(&[
+            "........", //
+            ".######.", //
+            ".#....#.", //
+            ".#.##.#.", //
+            "...#....", //
+        ]);
+        let t = TraversalMap::free_space(&grid, 0.0);
+        let start = Cell::new(2, 1);
+        let map = cost_map(&t, &[start]);
+        let frame = *grid.frame();
+        for goal in frame.bounds().cells() {
+            let path = shortest_path(&frame, start, goal, |c| t.passable(c));
+            match (map.cost(goal), path) {
+                (Some(cost), Some(path)) => {
+                    let length: f64 = path.windows(2).map(|w| w[0].distance(w[1])).sum();
+                    assert!((length - cost).abs() < 1e-4, "{goal:?}: {length} vs {cost}");
+                    assert_eq!(path[0], start);
+                }
+                (None, None) => {}
+                (a, b) => panic!("{goal:?}: cost map {a:?}, A* {b:?}"),
+            }
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(crate::testing::seeded_proptest(256))]
+        /// Dial's buckets settle the same labels as Dijkstra with a heap.
+        #[test]
+        fn buckets_agree_with_a_binary_heap(
+            width in 1u32..24,
+            height in 1u32..24,
+            seed in 0u64..1_000_000,
+            blocked_per_mille in 0u64..400,
+            cut in proptest::bool::ANY,
+        ) {
+            let frame = GridFrame::new(0.25, crate::math::Point2::origin(), width, height);
+            let mut rng = crate::rng::SplitMix64::new(seed);
+            let costs: Vec<f32> = (0..frame.len())
+                .map(|_| if rng.below(1000) < blocked_per_mille { f32::INFINITY } else { 0.1 + 0.9 * rng.next_f64() as f32 })
+                .collect();
+            let t = TraversalMap::from_costs(frame, costs);
+            let source = Cell::new(rng.below(u64::from(width)) as i32, rng.below(u64::from(height)) as i32);
+            let corners = if cut { Corners::Cut } else { Corners::Keep };
+            let fast = cost_map_with(&t, &[source], corners);
+            let mut slow = vec![f32::INFINITY; t.padded.len()];
+            let start = padded_index(&frame, source);
+            slow[start] = 0.0;
+            let n = Weighted {
+                costs: &t.padded,
+                bits: &t.passable_bits,
+                stride: width as usize + 2,
+                orthogonal: 0.25,
+                diagonal: (0.25 * std::f64::consts::SQRT_2) as f32,
+            };
+            if cut {
+                heap::<_, true>(&n, &mut slow, &[start]);
+            } else {
+                heap::<_, false>(&n, &mut slow, &[start]);
+            }
+            for cell in frame.bounds().cells() {
+                let a = fast.cost(cell);
+                let b = slow[padded_index(&frame, cell)];
+                match a {
+                    Some(a) => proptest::prop_assert!((a - f64::from(b)).abs() < 1e-4, "{:?}: {} vs {}", cell, a, b),
+                    None => proptest::prop_assert!(!b.is_finite()),
+                }
+            }
         }
     }
 

@@ -24,3 +24,19 @@ pub mod math;
 pub mod policy;
 pub mod rng;
 pub mod visibility;
+
+#[cfg(test)]
+pub(crate) mod testing {
+    //! Test support shared by the modules.
+
+    /// Property-test settings with a fixed seed, so that every run checks the
+    /// same cases, and no regression files written into the source tree.
+    pub fn seeded_proptest(cases: u32) -> proptest::test_runner::Config {
+        proptest::test_runner::Config {
+            cases,
+            rng_seed: proptest::test_runner::RngSeed::Fixed(0x5EED),
+            failure_persistence: None,
+            ..proptest::test_runner::Config::default()
+        }
+    }
+}

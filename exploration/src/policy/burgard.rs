@@ -14,7 +14,7 @@
 //! casting). V is measured in metres × P(occ), so β does not depend on the
 //! grid resolution (at the paper's 15 cm cells, V in cells is V/0.15).
 
-use super::{Plan, PlanningInput, Policy, Target};
+use super::{Plan, PlanningInput, Policy, Target, robot_cost_maps};
 use crate::cost::{CostCache, TraversalKind};
 use crate::grid::{Cell, CellClass};
 use crate::visibility::line_of_sight;
@@ -64,14 +64,9 @@ impl Policy for Burgard {
                 )
             })
             .collect();
-        let values: Vec<Vec<Option<f64>>> = input
-            .robots
+        let values: Vec<Vec<Option<f64>>> = robot_cost_maps(input, costs, &kinds)
             .iter()
-            .zip(&kinds)
-            .map(|(robot, &kind)| {
-                let map = costs.cost_map(kind, robot.cell);
-                frontier.iter().map(|&t| map.cost(t)).collect()
-            })
+            .map(|map| frontier.iter().map(|&t| map.cost(t)).collect())
             .collect();
         // Line 3: all utilities start at 1.
         let mut utility = vec![1.0f64; frontier.len()];

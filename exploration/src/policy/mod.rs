@@ -81,6 +81,28 @@ impl PlanningInput<'_> {
     }
 }
 
+/// Each robot's cost map over its own traversal kind, computed once per
+/// replanning (cached) and in parallel on `input.threads` threads.
+pub fn robot_cost_maps(
+    input: &PlanningInput<'_>,
+    costs: &mut CostCache<'_>,
+    kinds: &[crate::cost::TraversalKind],
+) -> Vec<std::sync::Arc<crate::cost::CostMap>> {
+    let mut by_kind: BTreeMap<crate::cost::TraversalKind, Vec<Cell>> = BTreeMap::new();
+    for (robot, kind) in input.robots.iter().zip(kinds) {
+        by_kind.entry(*kind).or_default().push(robot.cell);
+    }
+    for (kind, sources) in &by_kind {
+        costs.cost_maps(*kind, sources, input.threads);
+    }
+    input
+        .robots
+        .iter()
+        .zip(kinds)
+        .map(|(robot, kind)| costs.cost_map(*kind, robot.cell))
+        .collect()
+}
+
 /// A target chosen for one robot.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Target {

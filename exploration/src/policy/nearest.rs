@@ -5,7 +5,7 @@
 //! "uncoordinated" strategy of Burgard et al. 2005, §IV-C. There is no
 //! arbitration: robots that share a closest frontier all go there.
 
-use super::{Plan, PlanningInput, Policy, Target};
+use super::{Plan, PlanningInput, Policy, Target, robot_cost_maps};
 use crate::cost::{CostCache, TraversalKind};
 
 pub(super) const NAME: &str = "nearest";
@@ -22,12 +22,14 @@ impl Policy for Nearest {
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
-        let targets = input
+        let kinds: Vec<TraversalKind> = input
             .robots
             .iter()
-            .map(|robot| {
-                let kind = TraversalKind::free_space(robot.capabilities.footprint_radius_m);
-                let map = costs.cost_map(kind, robot.cell);
+            .map(|r| TraversalKind::free_space(r.capabilities.footprint_radius_m))
+            .collect();
+        let targets = robot_cost_maps(input, costs, &kinds)
+            .iter()
+            .map(|map| {
                 frontier
                     .iter()
                     .filter_map(|&cell| map.cost(cell).map(|cost| (cost, cell)))

@@ -1,0 +1,555 @@
+//! One simulated robot: its own gRPC client, its own map, its sensor, its motion.
+//!
+//! A robot behaves as a real one talking to the executive would: it senses
+//! with a range sensor (ray casting in the true world), sends the cells its
+//! map gained as a patch with its pose and a sequence number, follows its
+//! assigned target along a shortest path one cell per step, and reports
+//! arrival. It watches its assignment stream and retries through outages of
+//! the executive, resending an unacknowledged update under the same number.
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use tokio::sync::watch;
+use tokio_util::sync::CancellationToken;
+use tonic::transport::Channel;
+use tonic::{Code, Status};
+
+use exploration::cost::shortest_path;
+use exploration::grid::{Cell, CellClass, CellRect, GridFrame, OccupancyGrid};
+use exploration::visibility::RangeSensor;
+use exploration_proto::v1 as pb;
+use exploration_proto::v1::fleet_client::FleetClient;
+
+use crate::world::World;
+
+/// Probability a robot reports for a cell its sensor saw empty.
+const P_FREE: f32 = 0.05;
+/// Probability a robot reports for a cell that stopped a beam.
+const P_OCCUPIED: f32 = 0.95;
+
+/// What every robot of the team can do.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RobotModel {
+    /// Sensor range, metres.
+    pub sensor_range_m: f64,
+    /// Sensor field of view, radians.
+    pub field_of_view_rad: f64,
+    /// Nominal speed, metres per second (reported; motion is one cell per step).
+    pub speed_mps: f64,
+    /// Footprint radius, metres.
+    pub footprint_radius_m: f64,
+}
+
+/// Why a robot could not go on.
+#[derive(Debug, thiserror::Error)]
+pub enum RobotError {
+    /// The executive refused a request for good.
+    #[error("{what}: {status}")]
+    Rpc {
+        /// Which request.
+        what: &'static str,
+        /// The executive's answer.
+        status: Status,
+    },
+    /// The executive stayed unreachable past the retry budget.
+    #[error("{what}: the executive stayed unreachable for {budget:?}: {status}")]
+    Unreachable {
+        /// Which request.
+        what: &'static str,
+        /// How long the robot kept trying.
+        budget: Duration,
+        /// The last error.
+        status: Status,
+    },
+}
+
+/// What the whole team knows: the union of the robots' maps. Robots plan
+/// their paths on it (the shared map of Burgard et al. 2005, §III), and the
+/// fleet measures coverage with it.
+#[derive(Debug, Clone)]
+pub struct TeamMap {
+    /// Known cells: free or occupied.
+    pub grid: OccupancyGrid,
+    /// Reachable free cells known.
+    pub known_reachable: usize,
+    /// Per cell: how many robots sensed it (for the overlap figure).
+    pub sensed_by: Vec<u8>,
+}
+
+impl TeamMap {
+    /// Nothing known yet.
+    pub fn new(frame: GridFrame) -> Self {
+        Self {
+            grid: OccupancyGrid::unknown(frame),
+            known_reachable: 0,
+            sensed_by: vec![0; frame.len()],
+        }
+    }
+}
+
+/// The robot's view of its assignment.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Task {
+    id: u64,
+    target: Cell,
+}
+
+/// How a step went.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct StepOutcome {
+    /// The robot moved one cell.
+    pub moved: bool,
+    /// It has a task.
+    pub has_task: bool,
+    /// The executive reports the mission complete.
+    pub mission_completed: bool,
+}
+
+/// A simulated robot.
+#[derive(Debug)]
+pub struct SimRobot {
+    /// Its name in the mission.
+    pub name: String,
+    /// Its identity at the executive.
+    pub id: u64,
+    client: FleetClient<Channel>,
+    /// The cell it stands on.
+    pub cell: Cell,
+    heading: f64,
+    sensor: RangeSensor,
+    /// Its own map: 0 unknown, 1 free, 2 occupied.
+    own: Vec<u8>,
+    seq: u64,
+    task: Option<Task>,
+    acknowledged_task: Option<u64>,
+    path: VecDeque<Cell>,
+    /// Metres travelled.
+    pub distance_m: f64,
+    /// Cells visited, in order.
+    pub trajectory: Vec<Cell>,
+    retry_budget: Duration,
+    stream: watch::Receiver<Option<pb::Assignment>>,
+    /// Steps at which the stream had not yet delivered the version a response named.
+    pub stream_lags: u64,
+}
+
+fn retryable(status: &Status) -> bool {
+    matches!(
+        status.code(),
+        Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded
+    )
+}
+
+impl SimRobot {
+    /// Connects to the executive and registers (or resumes) the robot.
+    #[allow(clippy::too_many_arguments)]
+    pub async fn connect(
+        endpoint: &str,
+        mission_id: u64,
+        name: String,
+        start: Cell,
+        world: &World,
+        model: RobotModel,
+        retry_budget: Duration,
+        stop: CancellationToken,
+    ) -> Result<Self, RobotError> {
+        let channel = tonic::transport::Endpoint::from_shared(endpoint.to_owned())
+            .map_err(|e| RobotError::Rpc {
+                what: "connect",
+                status: Status::invalid_argument(e.to_string()),
+            })?
+            .connect_timeout(Duration::from_secs(5))
+            .tcp_nodelay(true)
+            .connect_lazy();
+        let mut client = FleetClient::new(channel).max_decoding_message_size(64 << 20);
+        let frame = world.frame;
+        let point = frame.world_from_cell(start);
+        let request = pb::RegisterRobotRequest {
+            mission_id,
+            name: name.clone(),
+            capabilities: Some(pb::RobotCapabilities {
+                sensor_range_m: model.sensor_range_m,
+                field_of_view_rad: model.field_of_view_rad,
+                speed_mps: model.speed_mps,
+                footprint_radius_m: model.footprint_radius_m,
+            }),
+            pose: Some(pb::Pose {
+                x: point.x,
+                y: point.y,
+                theta: 0.0,
+            }),
+        };
+        let response = retry("RegisterRobot", retry_budget, || {
+            let mut client = client.clone();
+            let request = request.clone();
+            async move { client.register_robot(request).await }
+        })
+        .await?;
+        let robot = response.robot.ok_or_else(|| RobotError::Rpc {
+            what: "RegisterRobot",
+            status: Status::internal("the response holds no robot"),
+        })?;
+        let (tx, rx) = watch::channel(None);
+        tokio::spawn(watch_assignments(client.clone(), robot.id, tx, stop));
+        client = client.max_encoding_message_size(64 << 20);
+        Ok(Self {
+            name,
+            id: robot.id,
+            client,
+            cell: start,
+            heading: 0.0,
+            sensor: RangeSensor {
+                range_cells: model.sensor_range_m / frame.resolution,
+                field_of_view: model.field_of_view_rad,
+            },
+            own: vec![0; frame.len()],
+            seq: robot.last_map_seq,
+            task: None,
+            acknowledged_task: None,
+            path: VecDeque::new(),
+            distance_m: 0.0,
+            trajectory: vec![start],
+            retry_budget,
+            stream: rx,
+            stream_lags: 0,
+        })
+    }
+
+    /// One time step: move, sense, report, adopt the assignment.
+    pub async fn step(
+        &mut self,
+        world: &World,
+        team: &mut TeamMap,
+    ) -> Result<StepOutcome, RobotError> {
+        let mut outcome = StepOutcome::default();
+        // Move one cell along the path.
+        if let Some(next) = self.path.pop_front() {
+            if world.is_blocked(next) {
+                self.path.clear();
+            } else {
+                let (dx, dy) = (next.x - self.cell.x, next.y - self.cell.y);
+                self.heading = f64::from(dy).atan2(f64::from(dx));
+                self.distance_m += self.cell.distance(next) * world.frame.resolution;
+                self.cell = next;
+                self.trajectory.push(next);
+                outcome.moved = true;
+            }
+        }
+        // Arrived: say so; the answer carries the next assignment.
+        if let Some(task) = self.task.filter(|t| t.target == self.cell) {
+            let assignment = self
+                .heartbeat(world, pb::RobotState::Arrived, task.id, "")
+                .await?;
+            self.adopt(assignment, world, team).await?;
+        }
+        let patch = self.sense(world, team);
+        let assignment = self.send_update(world, patch).await?;
+        let completed = assignment.mission_state == pb::MissionState::Completed as i32;
+        self.adopt(assignment, world, team).await?;
+        outcome.has_task = self.task.is_some();
+        outcome.mission_completed = completed;
+        Ok(outcome)
+    }
+
+    /// Senses from the current cell; returns the patch of cells the robot's
+    /// own map gained or changed.
+    fn sense(&mut self, world: &World, team: &mut TeamMap) -> Option<pb::MapPatch> {
+        let frame = world.frame;
+        let mut changed: Option<CellRect> = None;
+        let own = &mut self.own;
+        self.sensor.scan(
+            self.cell,
+            self.heading,
+            |c| world.is_blocked(c),
+            |cell, hit| {
+                if !frame.contains(cell) {
+                    return;
+                }
+                let i = frame.index(cell);
+                let value = if hit { 2 } else { 1 };
+                if own[i] == value {
+                    return;
+                }
+                let first_time = own[i] == 0;
+                own[i] = value;
+                changed = Some(match changed {
+                    Some(r) => r.including(cell),
+                    None => CellRect::new(cell.x, cell.y, 1, 1),
+                });
+                if first_time {
+                    team.sensed_by[i] = team.sensed_by[i].saturating_add(1);
+                }
+                if team.grid.class(cell) == CellClass::Unknown {
+                    team.grid.set(cell, if hit { 95 } else { 5 });
+                    if world.reachable[i] {
+                        team.known_reachable += 1;
+                    }
+                }
+            },
+        );
+        let rect = changed?;
+        let mut values = Vec::with_capacity(rect.area() as usize);
+        let mut unknown = Vec::with_capacity(rect.area() as usize);
+        for cell in rect.cells() {
+            match self.own[frame.index(cell)] {
+                1 => {
+                    values.push(P_FREE);
+                    unknown.push(0);
+                }
+                2 => {
+                    values.push(P_OCCUPIED);
+                    unknown.push(0);
+                }
+                _ => {
+                    values.push(0.5);
+                    unknown.push(1);
+                }
+            }
+        }
+        let any_unknown = unknown.iter().any(|&u| u != 0);
+        Some(pb::MapPatch {
+            x: rect.x as u32,
+            y: rect.y as u32,
+            width: rect.width,
+            height: rect.height,
+            encoding: pb::CellEncoding::Probability as i32,
+            values,
+            unknown: if any_unknown { unknown } else { Vec::new() },
+        })
+    }
+
+    fn pose(&self, world: &World) -> pb::Pose {
+        let p = world.frame.world_from_cell(self.cell);
+        pb::Pose {
+            x: p.x,
+            y: p.y,
+            theta: self.heading,
+        }
+    }
+
+    /// Sends a map update under the next sequence number; an update whose
+    /// acknowledgement was lost is resent under the same number and
+    /// recognised as applied.
+    async fn send_update(
+        &mut self,
+        world: &World,
+        patch: Option<pb::MapPatch>,
+    ) -> Result<pb::Assignment, RobotError> {
+        self.seq += 1;
+        let request = pb::UpdateMapRequest {
+            robot_id: self.id,
+            seq: self.seq,
+            pose: Some(self.pose(world)),
+            patches: patch.into_iter().collect(),
+        };
+        let client = self.client.clone();
+        let result = retry("UpdateMap", self.retry_budget, || {
+            let mut client = client.clone();
+            let request = request.clone();
+            async move { client.update_map(request).await }
+        })
+        .await;
+        match result {
+            Ok(response) => response.assignment.ok_or_else(|| RobotError::Rpc {
+                what: "UpdateMap",
+                status: Status::internal("the response holds no assignment"),
+            }),
+            // Applied before the executive went down: fetch the assignment.
+            Err(RobotError::Rpc { status, .. }) if status.code() == Code::AlreadyExists => {
+                self.get_assignment().await
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    async fn get_assignment(&self) -> Result<pb::Assignment, RobotError> {
+        let request = pb::GetAssignmentRequest { robot_id: self.id };
+        retry("GetAssignment", self.retry_budget, || {
+            let mut client = self.client.clone();
+            async move { client.get_assignment(request).await }
+        })
+        .await
+    }
+
+    async fn heartbeat(
+        &mut self,
+        world: &World,
+        state: pb::RobotState,
+        task_id: u64,
+        reason: &str,
+    ) -> Result<pb::Assignment, RobotError> {
+        let request = pb::HeartbeatRequest {
+            robot_id: self.id,
+            pose: Some(self.pose(world)),
+            state: state as i32,
+            task_id,
+            reason: reason.to_owned(),
+        };
+        let response = retry("Heartbeat", self.retry_budget, || {
+            let mut client = self.client.clone();
+            let request = request.clone();
+            async move { client.heartbeat(request).await }
+        })
+        .await?;
+        response.assignment.ok_or_else(|| RobotError::Rpc {
+            what: "Heartbeat",
+            status: Status::internal("the response holds no assignment"),
+        })
+    }
+
+    /// Takes up an assignment: plans a path to a new target, acknowledges it,
+    /// or reports failure when the target cannot be reached.
+    async fn adopt(
+        &mut self,
+        mut assignment: pb::Assignment,
+        world: &World,
+        team: &TeamMap,
+    ) -> Result<(), RobotError> {
+        // Up to a few rounds: a failure report brings a new assignment.
+        for _ in 0..4 {
+            self.check_stream(assignment.version).await;
+            let target = assignment
+                .target
+                .as_ref()
+                .filter(|_| assignment.task_id != 0)
+                .and_then(|p| {
+                    world
+                        .frame
+                        .cell_from_world(&exploration::math::Point2::new(p.x, p.y))
+                });
+            let task = target.map(|target| Task {
+                id: assignment.task_id,
+                target,
+            });
+            if task == self.task {
+                return Ok(());
+            }
+            self.task = task;
+            self.path.clear();
+            let Some(task) = task else {
+                return Ok(());
+            };
+            let path = shortest_path(&world.frame, self.cell, task.target, |c| {
+                team.grid.class(c) == CellClass::Free
+            });
+            match path {
+                Some(path) => {
+                    self.path = path.into_iter().skip(1).collect();
+                    if self.acknowledged_task != Some(task.id) {
+                        self.acknowledged_task = Some(task.id);
+                        let next = self
+                            .heartbeat(world, pb::RobotState::Moving, task.id, "")
+                            .await?;
+                        if next.version > assignment.version {
+                            assignment = next;
+                            continue;
+                        }
+                    }
+                    return Ok(());
+                }
+                None => {
+                    assignment = self
+                        .heartbeat(
+                            world,
+                            pb::RobotState::Failed,
+                            task.id,
+                            "no known path to the target",
+                        )
+                        .await?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The stream must deliver what a response announced; count when it lags.
+    async fn check_stream(&mut self, version: u64) {
+        let caught_up = tokio::time::timeout(
+            Duration::from_secs(2),
+            self.stream
+                .wait_for(|a| a.as_ref().is_some_and(|a| a.version >= version)),
+        )
+        .await;
+        if !matches!(caught_up, Ok(Ok(_))) {
+            self.stream_lags += 1;
+        }
+    }
+}
+
+/// Follows a robot's assignment stream, reconnecting through outages, and
+/// keeps the newest assignment in `tx`.
+async fn watch_assignments(
+    mut client: FleetClient<Channel>,
+    robot_id: u64,
+    tx: watch::Sender<Option<pb::Assignment>>,
+    stop: CancellationToken,
+) {
+    let mut backoff = Duration::from_millis(50);
+    loop {
+        let stream = tokio::select! {
+            () = stop.cancelled() => return,
+            r = client.watch_assignment(pb::WatchAssignmentRequest { robot_id }) => r,
+        };
+        if let Ok(response) = stream {
+            backoff = Duration::from_millis(50);
+            let mut stream = response.into_inner();
+            loop {
+                let message = tokio::select! {
+                    () = stop.cancelled() => return,
+                    m = stream.message() => m,
+                };
+                match message {
+                    Ok(Some(a)) => {
+                        tx.send_if_modified(|current| {
+                            let newer = current.as_ref().is_none_or(|c| a.version > c.version);
+                            if newer {
+                                *current = Some(a);
+                            }
+                            newer
+                        });
+                    }
+                    _ => break,
+                }
+            }
+        }
+        tokio::select! {
+            () = stop.cancelled() => return,
+            () = tokio::time::sleep(backoff) => {}
+        }
+        backoff = (backoff * 2).min(Duration::from_secs(1));
+    }
+}
+
+/// Calls `call` until it succeeds, fails for good, or the executive stays
+/// unreachable for `budget`.
+async fn retry<T, F, Fut>(
+    what: &'static str,
+    budget: Duration,
+    mut call: F,
+) -> Result<T, RobotError>
+where
+    F: FnMut() -> Fut,
+    Fut: std::future::Future<Output = Result<tonic::Response<T>, Status>>,
+{
+    let started = tokio::time::Instant::now();
+    let mut backoff = Duration::from_millis(20);
+    loop {
+        match call().await {
+            Ok(response) => return Ok(response.into_inner()),
+            Err(status) if retryable(&status) => {
+                if started.elapsed() >= budget {
+                    return Err(RobotError::Unreachable {
+                        what,
+                        budget,
+                        status,
+                    });
+                }
+                tracing::debug!(what, %status, "executive unreachable; retrying");
+                tokio::time::sleep(backoff).await;
+                backoff = (backoff * 2).min(Duration::from_millis(500));
+            }
+            Err(status) => return Err(RobotError::Rpc { what, status }),
+        }
+    }
+}

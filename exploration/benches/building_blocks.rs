@@ -1,0 +1,85 @@
+//! Building blocks on the exact inputs of `../shared/bench/peers.py` ("gen v1",
+//! seed 42), so that each figure can be set against scipy / scikit-image
+//! measured on the same machine in the same sitting. Each benchmark prints
+//! the same `check` figures as the peer once, to show both solved the same
+//! problem.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use std::hint::black_box;
+
+use exploration::cost::{Corners, TraversalMap, cost_map_with};
+use exploration::frontier::{Adjacency, FrontierMap, clusters};
+use exploration::grid::{Cell, GridFrame, OccupancyGrid};
+use exploration::math::Point2;
+
+mod gen_v1;
+
+const SEED: u64 = 42;
+
+fn unit_frame(n: usize) -> GridFrame {
+    GridFrame::new(1.0, Point2::origin(), n as u32, n as u32)
+}
+
+fn costmap(c: &mut Criterion) {
+    let n = 2000;
+    let occupied = gen_v1::obstacles(n, n, SEED);
+    let frame = unit_frame(n);
+    let costs: Vec<f32> = occupied
+        .iter()
+        .map(|&o| if o { f32::INFINITY } else { 1.0 })
+        .collect();
+    let traversal = TraversalMap::from_costs(frame, costs);
+    let source = Cell::new((n / 2) as i32, (n / 2) as i32);
+    let map = cost_map_with(&traversal, &[source], Corners::Cut);
+    let (mut reachable, mut sum, mut max) = (0u64, 0f64, 0f64);
+    for cell in frame.bounds().cells() {
+        if let Some(v) = map.cost(cell) {
+            reachable += 1;
+            sum += v;
+            max = max.max(v);
+        }
+    }
+    eprintln!(
+        "check costmap_8connected 2000x2000: reachable {reachable} max {max:.3} sum {sum:.1}"
+    );
+    c.bench_function("costmap_8connected 2000x2000", |b| {
+        b.iter(|| cost_map_with(black_box(&traversal), &[source], Corners::Cut))
+    });
+}
+
+fn frontier(c: &mut Criterion) {
+    let n = 2000;
+    let values = gen_v1::occupancy(n, n, SEED);
+    let cells: Vec<u8> = values
+        .iter()
+        .map(|&v| match v {
+            gen_v1::FREE => 5,
+            gen_v1::OCC => 100,
+            _ => exploration::grid::UNKNOWN,
+        })
+        .collect();
+    let grid = OccupancyGrid::from_cells(unit_frame(n), cells);
+    let detect = || {
+        let frontier = FrontierMap::detect_with(&grid, Adjacency::EdgesAndCorners);
+        let clusters = clusters(&frontier, 1);
+        (frontier, clusters)
+    };
+    let (frontier, clusters) = detect();
+    eprintln!(
+        "check frontier_label_centroids 2000x2000: frontier_cells {} clusters {} largest {}",
+        frontier.len(),
+        clusters.len(),
+        clusters.iter().map(|c| c.len()).max().unwrap_or(0)
+    );
+    c.bench_function("frontier_mask 2000x2000", |b| {
+        b.iter(|| FrontierMap::detect_with(black_box(&grid), Adjacency::EdgesAndCorners))
+    });
+    c.bench_function("frontier_label_centroids 2000x2000", |b| b.iter(detect));
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(10).warm_up_time(std::time::Duration::from_secs(1));
+    targets = costmap, frontier
+}
+criterion_main!(benches);

@@ -1,0 +1,416 @@
+//! The executive's own types: what the service converts requests into, what
+//! the executive works on and what the store persists. No protocol types and
+//! no SQL here.
+
+use std::collections::BTreeMap;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use exploration::fusion::Patch;
+use exploration::grid::GridFrame;
+use exploration::math::Point2;
+use exploration::policy::{Capabilities, PolicyConfig};
+
+/// A mission's identity.
+pub type MissionId = u64;
+/// A robot's identity (unique across missions).
+pub type RobotId = u64;
+/// A task's identity (unique across missions).
+pub type TaskId = u64;
+
+/// Milliseconds since the Unix epoch, the executive's clock for records.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Timestamp(pub i64);
+
+impl Timestamp {
+    /// Now, by the system clock.
+    pub fn now() -> Self {
+        Self::from(SystemTime::now())
+    }
+
+    /// Milliseconds since the epoch.
+    pub fn millis(self) -> i64 {
+        self.0
+    }
+}
+
+impl From<SystemTime> for Timestamp {
+    fn from(t: SystemTime) -> Self {
+        let millis = match t.duration_since(UNIX_EPOCH) {
+            Ok(d) => d.as_millis() as i64,
+            Err(e) => -(e.duration().as_millis() as i64),
+        };
+        Self(millis)
+    }
+}
+
+/// A planar pose in a mission's world frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// Position, metres.
+    pub position: Point2,
+    /// Heading, radians.
+    pub heading: f64,
+}
+
+/// When to replan besides arrivals and failures (Burgard et al. 2005, §II-C).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReplanSettings {
+    /// Replan once a robot travelled this far since its assignment, metres.
+    pub distance_m: f64,
+    /// Replan once this much time passed since the last replanning.
+    pub interval: Duration,
+    /// Replan once this share of the frontier was added or removed.
+    pub frontier_change: f64,
+}
+
+impl Default for ReplanSettings {
+    fn default() -> Self {
+        Self {
+            distance_m: 3.0,
+            interval: Duration::from_secs(30),
+            frontier_change: 0.25,
+        }
+    }
+}
+
+/// What a mission is made of.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MissionSpec {
+    /// Human-readable name.
+    pub name: String,
+    /// Its grid.
+    pub frame: GridFrame,
+    /// Its coordination policy.
+    pub policy: PolicyConfig,
+    /// Its replanning triggers.
+    pub replan: ReplanSettings,
+}
+
+/// Where a mission is in its life.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MissionState {
+    /// Robots are being assigned targets.
+    Active,
+    /// No reachable frontier is left.
+    Completed,
+}
+
+impl MissionState {
+    /// The name stored and logged.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Active => "active",
+            Self::Completed => "completed",
+        }
+    }
+
+    /// Parses a stored name.
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "active" => Some(Self::Active),
+            "completed" => Some(Self::Completed),
+            _ => None,
+        }
+    }
+}
+
+/// A mission as stored.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MissionRecord {
+    /// Its identity.
+    pub id: MissionId,
+    /// What it is.
+    pub spec: MissionSpec,
+    /// Where it is.
+    pub state: MissionState,
+    /// Replannings so far.
+    pub replans: u64,
+    /// Map updates applied so far.
+    pub map_updates: u64,
+    /// When it was created.
+    pub created_at: Timestamp,
+}
+
+/// What a robot reports it is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RobotState {
+    /// Waiting.
+    Idle,
+    /// Travelling to its target.
+    Moving,
+    /// Reached its target.
+    Arrived,
+    /// Cannot carry out its task.
+    Failed,
+}
+
+impl RobotState {
+    /// The name stored and logged.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Idle => "idle",
+            Self::Moving => "moving",
+            Self::Arrived => "arrived",
+            Self::Failed => "failed",
+        }
+    }
+
+    /// Parses a stored name.
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "idle" => Some(Self::Idle),
+            "moving" => Some(Self::Moving),
+            "arrived" => Some(Self::Arrived),
+            "failed" => Some(Self::Failed),
+            _ => None,
+        }
+    }
+}
+
+/// What a robot registers with.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RobotSpec {
+    /// Unique within the mission.
+    pub name: String,
+    /// What it can do.
+    pub capabilities: Capabilities,
+    /// Where it is.
+    pub pose: Pose,
+}
+
+/// A robot as stored.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RobotRecord {
+    /// Its identity.
+    pub id: RobotId,
+    /// Its mission.
+    pub mission_id: MissionId,
+    /// Its name.
+    pub name: String,
+    /// What it can do.
+    pub capabilities: Capabilities,
+    /// What it last reported doing.
+    pub state: RobotState,
+    /// Where it last was.
+    pub pose: Pose,
+    /// Highest applied map sequence number; 0 before the first update.
+    pub last_map_seq: u64,
+    /// Distance travelled, summed over reported poses, metres.
+    pub distance_m: f64,
+    /// Bumped whenever its assignment changes.
+    pub assignment_version: u64,
+    /// `distance_m` at the latest replanning (state of the distance trigger
+    /// of Burgard et al. 2005, §II-C).
+    pub assigned_distance_m: f64,
+    /// The task it works on.
+    pub current_task: Option<TaskId>,
+    /// When it was last heard from.
+    pub last_seen: Timestamp,
+}
+
+/// A map update as the executive applies it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapUpdate {
+    /// Per-robot sequence number.
+    pub seq: u64,
+    /// The robot's pose.
+    pub pose: Pose,
+    /// Validated patches (not yet checked against the mission's grid).
+    pub patches: Vec<Patch>,
+}
+
+/// A robot's report.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Heartbeat {
+    /// Where it is.
+    pub pose: Pose,
+    /// What it does.
+    pub state: RobotState,
+    /// The task the state refers to.
+    pub task_id: Option<TaskId>,
+    /// Why it failed, if it did.
+    pub reason: String,
+}
+
+/// One bid of a robot (Simmons et al. 2000, §4.1).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bid {
+    /// Candidate target.
+    pub target: Point2,
+    /// Path cost to it.
+    pub path_cost: f64,
+    /// Expected information gain.
+    pub information_gain: f64,
+    /// Bounding rectangle of the gain region: (min, max) corners.
+    pub gain_region: (Point2, Point2),
+}
+
+/// The lifecycle of a task.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum TaskState {
+    /// Chosen, not yet acknowledged.
+    Assigned,
+    /// The robot is on its way.
+    Active,
+    /// The robot arrived.
+    Reached,
+    /// Replaced by a replanning.
+    Preempted,
+    /// Replaced by an operator's override.
+    Overridden,
+    /// The robot could not carry it out.
+    Failed,
+    /// Taken from the robot.
+    Released,
+    /// Ended with the mission.
+    Cancelled,
+}
+
+impl TaskState {
+    /// The name stored and logged.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Assigned => "assigned",
+            Self::Active => "active",
+            Self::Reached => "reached",
+            Self::Preempted => "preempted",
+            Self::Overridden => "overridden",
+            Self::Failed => "failed",
+            Self::Released => "released",
+            Self::Cancelled => "cancelled",
+        }
+    }
+
+    /// Parses a stored name.
+    pub fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "assigned" => Self::Assigned,
+            "active" => Self::Active,
+            "reached" => Self::Reached,
+            "preempted" => Self::Preempted,
+            "overridden" => Self::Overridden,
+            "failed" => Self::Failed,
+            "released" => Self::Released,
+            "cancelled" => Self::Cancelled,
+            _ => return None,
+        })
+    }
+
+    /// Whether the task has ended.
+    pub fn is_terminal(self) -> bool {
+        !matches!(self, Self::Assigned | Self::Active)
+    }
+}
+
+/// Who changed a task's state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Actor {
+    /// A replanning.
+    Policy,
+    /// The robot's own report.
+    Robot,
+    /// An operator.
+    Operator,
+    /// A lease that ran out.
+    Lease,
+    /// The executive itself (mission end).
+    Executive,
+}
+
+impl Actor {
+    /// The name stored and logged.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Policy => "policy",
+            Self::Robot => "robot",
+            Self::Operator => "operator",
+            Self::Lease => "lease",
+            Self::Executive => "executive",
+        }
+    }
+
+    /// Parses a stored name.
+    pub fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "policy" => Self::Policy,
+            "robot" => Self::Robot,
+            "operator" => Self::Operator,
+            "lease" => Self::Lease,
+            "executive" => Self::Executive,
+            _ => return None,
+        })
+    }
+}
+
+/// One state change of a task.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Transition {
+    /// The state before; `None` when the task was created.
+    pub from: Option<TaskState>,
+    /// The state after.
+    pub to: TaskState,
+    /// When.
+    pub at: Timestamp,
+    /// Why, in a few words.
+    pub cause: String,
+    /// Who.
+    pub actor: Actor,
+}
+
+/// A task as stored.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TaskRecord {
+    /// Its identity.
+    pub id: TaskId,
+    /// Its mission.
+    pub mission_id: MissionId,
+    /// The robot it was given to.
+    pub robot_id: RobotId,
+    /// Where to go.
+    pub target: Point2,
+    /// Where it is in its life.
+    pub state: TaskState,
+    /// The policy that chose it.
+    pub policy: String,
+    /// The policy's figure of merit.
+    pub utility: f64,
+    /// The policy's path cost.
+    pub path_cost: f64,
+    /// When it was created.
+    pub created_at: Timestamp,
+    /// When it last changed.
+    pub updated_at: Timestamp,
+    /// Every change, oldest first (may be empty when not loaded).
+    pub transitions: Vec<Transition>,
+}
+
+/// Where a robot should go now.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Assignment {
+    /// The robot.
+    pub robot_id: RobotId,
+    /// Bumped at every change.
+    pub version: u64,
+    /// The task, if any.
+    pub task: Option<AssignedTask>,
+    /// The mission's policy.
+    pub policy: &'static str,
+    /// The mission's state.
+    pub mission_state: MissionState,
+}
+
+/// The task part of an [`Assignment`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AssignedTask {
+    /// The task.
+    pub id: TaskId,
+    /// Where to go.
+    pub target: Point2,
+    /// The policy's figure of merit.
+    pub utility: f64,
+    /// The policy's path cost.
+    pub path_cost: f64,
+}
+
+/// Policy parameters as given by a client, before validation.
+pub type ParamOverrides = BTreeMap<String, f64>;

@@ -1,0 +1,74 @@
+//! The executive's errors, and the one place they become gRPC statuses.
+
+use exploration::fusion::PatchError;
+use exploration::policy::PolicyError;
+
+use crate::store::StoreError;
+
+/// Everything that can go wrong in a request. The message of every variant
+/// but [`Error::Store`] and [`Error::Internal`] is written for the client: it
+/// says what was wrong and what to send instead.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The request is malformed, whatever the executive's state.
+    #[error("{0}")]
+    InvalidArgument(String),
+    /// A mission, robot or task that does not exist.
+    #[error("{0}")]
+    NotFound(String),
+    /// The request repeats one already carried out.
+    #[error("{0}")]
+    AlreadyExists(String),
+    /// The request does not fit the executive's state.
+    #[error("{0}")]
+    FailedPrecondition(String),
+    /// A quota would be exceeded.
+    #[error("{0}")]
+    ResourceExhausted(String),
+    /// The executive is shutting down.
+    #[error("the executive is shutting down; retry against its successor")]
+    ShuttingDown,
+    /// Persistence failed.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// A bug or an unexpected failure.
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+impl From<PatchError> for Error {
+    fn from(e: PatchError) -> Self {
+        Self::InvalidArgument(e.to_string())
+    }
+}
+
+impl From<PolicyError> for Error {
+    fn from(e: PolicyError) -> Self {
+        Self::InvalidArgument(e.to_string())
+    }
+}
+
+impl From<Error> for tonic::Status {
+    fn from(e: Error) -> Self {
+        use tonic::Status;
+        match e {
+            Error::InvalidArgument(m) => Status::invalid_argument(m),
+            Error::NotFound(m) => Status::not_found(m),
+            Error::AlreadyExists(m) => Status::already_exists(m),
+            Error::FailedPrecondition(m) => Status::failed_precondition(m),
+            Error::ResourceExhausted(m) => Status::resource_exhausted(m),
+            Error::ShuttingDown => Status::unavailable(e.to_string()),
+            // Internals are logged here, once, and never shown to the client.
+            Error::Store(cause) => {
+                tracing::error!(error = %cause, "store failure");
+                Status::internal(
+                    "internal error: the executive could not persist or read state; it logged the cause",
+                )
+            }
+            Error::Internal(cause) => {
+                tracing::error!(error = %cause, "internal failure");
+                Status::internal("internal error; the executive logged the cause")
+            }
+        }
+    }
+}

@@ -1,0 +1,609 @@
+//! One mission's live state, and the rules that change it.
+//!
+//! Every operation follows the same three steps, so that nothing is
+//! acknowledged before it is durable and a failed write changes nothing:
+//! `prepare_*` checks the request against the state and describes its effect
+//! as a [`Changeset`] without touching anything; the executive commits that
+//! changeset to the store; [`Mission::apply`] then makes it the live state
+//! and pushes changed assignments to the robots' watchers.
+
+use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use tokio::sync::watch;
+use tokio::time::Instant;
+
+use exploration::cost::CostCache;
+use exploration::frontier::{FrontierCluster, FrontierMap, clusters};
+use exploration::fusion::MapFusion;
+use exploration::grid::OccupancyGrid;
+use exploration::math::Point2;
+use exploration::policy::{CurrentTask, Plan, PlanningInput, Policy, RobotView};
+
+use crate::domain::{
+    Actor, AssignedTask, Assignment, Heartbeat, MapUpdate, MissionRecord, MissionState, Pose,
+    RobotId, RobotRecord, RobotState, TaskId, TaskRecord, TaskState, Timestamp, Transition,
+};
+use crate::error::Error;
+use crate::store::{Changeset, LoggedPatch, MissionCounters, TaskChange};
+
+/// A robot and the channel its assignment is pushed on.
+#[derive(Debug)]
+struct RobotSlot {
+    record: RobotRecord,
+    watch: watch::Sender<Assignment>,
+}
+
+/// A mission's live state.
+#[derive(Debug)]
+pub(crate) struct Mission {
+    record: MissionRecord,
+    policy: Arc<dyn Policy>,
+    fusion: MapFusion,
+    frontier: FrontierMap,
+    known_cells: u64,
+    robots: BTreeMap<RobotId, RobotSlot>,
+    names: HashMap<String, RobotId>,
+    open_tasks: BTreeMap<TaskId, TaskRecord>,
+    last_replan: Instant,
+    frontier_at_replan: usize,
+    frontier_churn: usize,
+    /// Why the next operation must replan, when an event asked for it.
+    pending_replan: Option<String>,
+}
+
+/// Everything needed to run a policy off the mission's lock.
+#[derive(Debug)]
+pub(crate) struct PlanningJob {
+    grid: OccupancyGrid,
+    clusters: Vec<FrontierCluster>,
+    robots: Vec<RobotView>,
+    policy: Arc<dyn Policy>,
+    threads: usize,
+}
+
+impl PlanningJob {
+    /// Runs the policy; CPU-bound.
+    pub(crate) fn run(self) -> Plan {
+        let input = PlanningInput {
+            grid: &self.grid,
+            clusters: &self.clusters,
+            robots: &self.robots,
+            threads: self.threads,
+        };
+        let mut cache = CostCache::new(&self.grid);
+        self.policy.plan(&input, &mut cache)
+    }
+}
+
+impl Mission {
+    /// A mission from its stored state: replays the map log, reopens its tasks.
+    pub(crate) fn restore(
+        record: MissionRecord,
+        robots: Vec<RobotRecord>,
+        patches: Vec<LoggedPatch>,
+        open_tasks: Vec<TaskRecord>,
+    ) -> Result<Self, Error> {
+        let policy: Arc<dyn Policy> = Arc::from(record.spec.policy.build());
+        let mut fusion = MapFusion::new(record.spec.frame);
+        let mut known_cells = 0;
+        for logged in &patches {
+            let change = fusion.apply(logged.robot_id, &logged.patch).map_err(|e| {
+                Error::Internal(format!(
+                    "mission {}: stored patch does not apply: {e}",
+                    record.id
+                ))
+            })?;
+            known_cells += change.newly_known;
+        }
+        let frontier = FrontierMap::detect(fusion.grid());
+        let mut mission = Self {
+            policy,
+            fusion,
+            frontier_at_replan: frontier.len(),
+            frontier,
+            known_cells,
+            robots: BTreeMap::new(),
+            names: HashMap::new(),
+            open_tasks: open_tasks.into_iter().map(|t| (t.id, t)).collect(),
+            last_replan: Instant::now(),
+            frontier_churn: 0,
+            pending_replan: Some("executive restarted".to_owned()),
+            record,
+        };
+        for robot in robots {
+            mission.insert_robot(robot);
+        }
+        Ok(mission)
+    }
+
+    /// A mission just created.
+    pub(crate) fn new(record: MissionRecord) -> Self {
+        let mut mission = Self::restore(record, Vec::new(), Vec::new(), Vec::new())
+            .unwrap_or_else(|_| unreachable!("an empty log always applies"));
+        mission.pending_replan = None;
+        mission
+    }
+
+    pub(crate) fn record(&self) -> &MissionRecord {
+        &self.record
+    }
+
+    pub(crate) fn robot_count(&self) -> usize {
+        self.robots.len()
+    }
+
+    pub(crate) fn known_cells(&self) -> u64 {
+        self.known_cells
+    }
+
+    pub(crate) fn frontier_cells(&self) -> usize {
+        self.frontier.len()
+    }
+
+    pub(crate) fn grid(&self) -> &OccupancyGrid {
+        self.fusion.grid()
+    }
+
+    pub(crate) fn frontier(&self) -> &FrontierMap {
+        &self.frontier
+    }
+
+    pub(crate) fn robot_by_name(&self, name: &str) -> Option<&RobotRecord> {
+        self.names
+            .get(name)
+            .and_then(|id| self.robots.get(id))
+            .map(|s| &s.record)
+    }
+
+    pub(crate) fn robot(&self, id: RobotId) -> Result<&RobotRecord, Error> {
+        self.robots
+            .get(&id)
+            .map(|s| &s.record)
+            .ok_or_else(|| Error::NotFound(format!("robot {id} does not exist")))
+    }
+
+    pub(crate) fn robots(&self) -> impl Iterator<Item = &RobotRecord> {
+        self.robots.values().map(|s| &s.record)
+    }
+
+    /// The target of a robot's current task.
+    pub(crate) fn target_of(&self, robot: &RobotRecord) -> Option<Point2> {
+        robot
+            .current_task
+            .and_then(|t| self.open_tasks.get(&t))
+            .map(|t| t.target)
+    }
+
+    /// Adds a robot just registered (or restored).
+    pub(crate) fn insert_robot(&mut self, record: RobotRecord) {
+        let assignment = self.assignment_for(&record);
+        let (watch, _) = watch::channel(assignment);
+        self.names.insert(record.name.clone(), record.id);
+        self.robots.insert(record.id, RobotSlot { record, watch });
+        self.pending_replan = Some("robot joined".to_owned());
+    }
+
+    /// The robot's assignment as it stands.
+    pub(crate) fn assignment(&self, id: RobotId) -> Result<Assignment, Error> {
+        Ok(self.assignment_for(self.robot(id)?))
+    }
+
+    fn assignment_for(&self, robot: &RobotRecord) -> Assignment {
+        let task = robot
+            .current_task
+            .and_then(|t| self.open_tasks.get(&t))
+            .map(|t| AssignedTask {
+                id: t.id,
+                target: t.target,
+                utility: t.utility,
+                path_cost: t.path_cost,
+            });
+        Assignment {
+            robot_id: robot.id,
+            version: robot.assignment_version,
+            task,
+            policy: self.record.spec.policy.name(),
+            mission_state: self.record.state,
+        }
+    }
+
+    /// A receiver of the robot's assignments.
+    pub(crate) fn watch(&self, id: RobotId) -> Result<watch::Receiver<Assignment>, Error> {
+        self.robots
+            .get(&id)
+            .map(|s| s.watch.subscribe())
+            .ok_or_else(|| Error::NotFound(format!("robot {id} does not exist")))
+    }
+
+    fn check_pose(&self, pose: &Pose) -> Result<(), Error> {
+        let frame = &self.record.spec.frame;
+        if frame.cell_from_world(&pose.position).is_none() {
+            return Err(Error::InvalidArgument(format!(
+                "pose ({:.3}, {:.3}) lies outside the mission map, which spans x {:.3}..{:.3}, y {:.3}..{:.3}",
+                pose.position.x,
+                pose.position.y,
+                frame.origin.x,
+                frame.origin.x + f64::from(frame.width) * frame.resolution,
+                frame.origin.y,
+                frame.origin.y + f64::from(frame.height) * frame.resolution,
+            )));
+        }
+        Ok(())
+    }
+
+    /// The robot record after it reported `pose` at `now`.
+    fn moved(robot: &RobotRecord, pose: Pose, now: Timestamp) -> RobotRecord {
+        let mut next = robot.clone();
+        next.distance_m += (pose.position - robot.pose.position).norm();
+        next.pose = pose;
+        next.last_seen = now;
+        next
+    }
+
+    fn counters(&self) -> MissionCounters {
+        MissionCounters {
+            id: self.record.id,
+            state: self.record.state,
+            replans: self.record.replans,
+            map_updates: self.record.map_updates,
+        }
+    }
+
+    /// Checks a map update and describes its effect.
+    pub(crate) fn prepare_update(
+        &self,
+        robot_id: RobotId,
+        update: MapUpdate,
+        now: Timestamp,
+    ) -> Result<Changeset, Error> {
+        let robot = self.robot(robot_id)?;
+        if update.seq == 0 {
+            return Err(Error::InvalidArgument(
+                "seq must be at least 1; number each robot's map updates 1, 2, 3, ...".to_owned(),
+            ));
+        }
+        if update.seq == robot.last_map_seq {
+            return Err(Error::AlreadyExists(format!(
+                "map update {} of robot {robot_id} was already applied; the next one must be numbered above {}",
+                update.seq, robot.last_map_seq
+            )));
+        }
+        if update.seq < robot.last_map_seq {
+            return Err(Error::FailedPrecondition(format!(
+                "map update {} of robot {robot_id} is stale: update {} was already applied; number updates above {}",
+                update.seq, robot.last_map_seq, robot.last_map_seq
+            )));
+        }
+        self.check_pose(&update.pose)?;
+        for (i, patch) in update.patches.iter().enumerate() {
+            patch
+                .check_inside(&self.record.spec.frame)
+                .map_err(|e| Error::InvalidArgument(format!("patch {i}: {e}")))?;
+        }
+        let mut next = Self::moved(robot, update.pose, now);
+        next.last_map_seq = update.seq;
+        let mut counters = self.counters();
+        counters.map_updates += 1;
+        Ok(Changeset {
+            mission: Some(counters),
+            robots: vec![next],
+            patches: update
+                .patches
+                .into_iter()
+                .map(|patch| LoggedPatch {
+                    robot_id,
+                    seq: update.seq,
+                    patch,
+                })
+                .collect(),
+            at: Some(now),
+            ..Changeset::default()
+        })
+    }
+
+    /// Checks a heartbeat and describes its effect.
+    pub(crate) fn prepare_heartbeat(
+        &self,
+        robot_id: RobotId,
+        heartbeat: Heartbeat,
+        now: Timestamp,
+    ) -> Result<Changeset, Error> {
+        let robot = self.robot(robot_id)?;
+        self.check_pose(&heartbeat.pose)?;
+        let mut next = Self::moved(robot, heartbeat.pose, now);
+        next.state = heartbeat.state;
+        let mut changes = Changeset {
+            at: Some(now),
+            ..Changeset::default()
+        };
+        let current = robot.current_task.filter(|t| heartbeat.task_id == Some(*t));
+        if let Some(task) = current.and_then(|t| self.open_tasks.get(&t)) {
+            let ended = match heartbeat.state {
+                RobotState::Arrived => Some((TaskState::Reached, "robot arrived".to_owned())),
+                RobotState::Failed => Some((
+                    TaskState::Failed,
+                    if heartbeat.reason.is_empty() {
+                        "robot failed".to_owned()
+                    } else {
+                        format!("robot failed: {}", heartbeat.reason)
+                    },
+                )),
+                RobotState::Moving if task.state == TaskState::Assigned => {
+                    changes.task_changes.push(transition(
+                        task,
+                        TaskState::Active,
+                        "robot moving",
+                        Actor::Robot,
+                        now,
+                    ));
+                    None
+                }
+                _ => None,
+            };
+            if let Some((state, cause)) = ended {
+                changes
+                    .task_changes
+                    .push(transition(task, state, &cause, Actor::Robot, now));
+                next.current_task = None;
+                next.assignment_version += 1;
+            }
+        }
+        changes.robots.push(next);
+        Ok(changes)
+    }
+
+    /// Makes a committed changeset the live state.
+    pub(crate) fn apply(&mut self, changes: Changeset) {
+        for logged in &changes.patches {
+            match self.fusion.apply(logged.robot_id, &logged.patch) {
+                Ok(change) => {
+                    self.known_cells += change.newly_known;
+                    if let Some(rect) = change.changed {
+                        let delta = self.frontier.update(self.fusion.grid(), rect);
+                        self.frontier_churn += delta.added + delta.removed;
+                    }
+                }
+                // Prepared changesets were checked against the grid.
+                Err(e) => {
+                    tracing::error!(mission = self.record.id, error = %e, "checked patch did not apply")
+                }
+            }
+        }
+        for task in changes.new_tasks {
+            self.open_tasks.insert(task.id, task);
+        }
+        for change in &changes.task_changes {
+            if change.state.is_terminal() {
+                self.open_tasks.remove(&change.task_id);
+                if matches!(change.state, TaskState::Reached | TaskState::Failed) {
+                    self.pending_replan = Some(change.transition.cause.clone());
+                }
+            } else if let Some(task) = self.open_tasks.get_mut(&change.task_id) {
+                task.state = change.state;
+                task.updated_at = change.transition.at;
+            }
+        }
+        if let Some(counters) = changes.mission {
+            self.record.state = counters.state;
+            self.record.replans = counters.replans;
+            self.record.map_updates = counters.map_updates;
+        }
+        for robot in changes.robots {
+            let Some(slot) = self.robots.get_mut(&robot.id) else {
+                continue;
+            };
+            slot.record = robot;
+        }
+        // Push every assignment whose version moved (after all records are in place).
+        let updates: Vec<(RobotId, Assignment)> = self
+            .robots
+            .values()
+            .filter(|s| s.watch.borrow().version != s.record.assignment_version)
+            .map(|s| (s.record.id, self.assignment_for(&s.record)))
+            .collect();
+        for (id, assignment) in updates {
+            if let Some(slot) = self.robots.get(&id) {
+                slot.watch.send_replace(assignment);
+            }
+        }
+    }
+
+    /// Why the mission should replan now, if it should (Burgard et al. 2005,
+    /// §II-C: when a robot reached its target, or travelled or waited long
+    /// enough; and when the frontier changed enough).
+    pub(crate) fn replan_reason(&self, now: Instant) -> Option<String> {
+        if self.robots.is_empty() {
+            return None;
+        }
+        if let Some(reason) = &self.pending_replan {
+            return Some(reason.clone());
+        }
+        let frame = &self.record.spec.frame;
+        let settings = &self.record.spec.replan;
+        for slot in self.robots.values() {
+            let robot = &slot.record;
+            if let Some(target) = self.target_of(robot) {
+                let explored = frame
+                    .cell_from_world(&target)
+                    .is_none_or(|cell| !self.frontier.contains(cell));
+                if explored {
+                    return Some(format!("target of robot {} explored", robot.id));
+                }
+                let travelled = robot.distance_m - robot.assigned_distance_m;
+                if travelled >= settings.distance_m {
+                    return Some(format!("robot {} travelled {travelled:.1} m", robot.id));
+                }
+            } else if self.frontier_churn > 0 && !self.frontier.is_empty() {
+                return Some(format!("robot {} idle and the frontier changed", robot.id));
+            }
+        }
+        let threshold = ((self.frontier_at_replan as f64) * settings.frontier_change).max(1.0);
+        if self.frontier_churn as f64 >= threshold {
+            return Some(format!("frontier changed by {} cells", self.frontier_churn));
+        }
+        if self.frontier_churn > 0 && now.duration_since(self.last_replan) >= settings.interval {
+            return Some("replanning interval elapsed".to_owned());
+        }
+        if self.record.state == MissionState::Completed && !self.frontier.is_empty() {
+            return Some("new frontier after completion".to_owned());
+        }
+        None
+    }
+
+    /// The inputs of a replanning.
+    pub(crate) fn planning_job(&self, threads: usize) -> PlanningJob {
+        let frame = &self.record.spec.frame;
+        let robots = self
+            .robots
+            .values()
+            .map(|s| {
+                let r = &s.record;
+                RobotView {
+                    id: r.id,
+                    cell: frame.cell_from_world_unchecked(&r.pose.position),
+                    capabilities: r.capabilities,
+                    current: self
+                        .target_of(r)
+                        .and_then(|t| frame.cell_from_world(&t))
+                        .map(|target| CurrentTask {
+                            target,
+                            gain_region: None,
+                        }),
+                }
+            })
+            .collect();
+        PlanningJob {
+            grid: self.fusion.grid().clone(),
+            clusters: clusters(&self.frontier, self.record.spec.policy.min_frontier_size()),
+            robots,
+            policy: self.policy.clone(),
+            threads,
+        }
+    }
+
+    /// Describes what a plan changes: tasks that end, tasks that start, robots
+    /// whose assignment moves, and the mission's state.
+    pub(crate) fn prepare_plan(
+        &self,
+        plan: &Plan,
+        reason: &str,
+        now: Timestamp,
+        task_ids: &AtomicU64,
+    ) -> Changeset {
+        let frame = &self.record.spec.frame;
+        let completed = self.known_cells > 0 && self.frontier.is_empty();
+        let mut changes = Changeset {
+            at: Some(now),
+            ..Changeset::default()
+        };
+        let policy = self.record.spec.policy.name();
+        for (slot, target) in self.robots.values().zip(&plan.targets) {
+            let robot = &slot.record;
+            let current = robot.current_task.and_then(|t| self.open_tasks.get(&t));
+            let target = if completed { None } else { target.as_ref() };
+            let keep = match (current, target) {
+                (Some(task), Some(t)) => frame.cell_from_world(&task.target) == Some(t.cell),
+                (None, None) => true,
+                _ => false,
+            };
+            let mut next = robot.clone();
+            // The distance trigger counts from the latest replanning.
+            next.assigned_distance_m = next.distance_m;
+            if keep {
+                if next != *robot {
+                    changes.robots.push(next);
+                }
+                continue;
+            }
+            if let Some(task) = current {
+                let (state, cause, actor) = if completed {
+                    (
+                        TaskState::Cancelled,
+                        "mission complete: no frontier left".to_owned(),
+                        Actor::Executive,
+                    )
+                } else {
+                    (TaskState::Preempted, reason.to_owned(), Actor::Policy)
+                };
+                changes
+                    .task_changes
+                    .push(transition(task, state, &cause, actor, now));
+            }
+            next.current_task = None;
+            if let Some(t) = target {
+                let id = task_ids.fetch_add(1, Ordering::Relaxed) + 1;
+                changes.new_tasks.push(TaskRecord {
+                    id,
+                    mission_id: self.record.id,
+                    robot_id: robot.id,
+                    target: frame.world_from_cell(t.cell),
+                    state: TaskState::Assigned,
+                    policy: policy.to_owned(),
+                    utility: t.utility,
+                    path_cost: t.path_cost,
+                    created_at: now,
+                    updated_at: now,
+                    transitions: vec![Transition {
+                        from: None,
+                        to: TaskState::Assigned,
+                        at: now,
+                        cause: reason.to_owned(),
+                        actor: Actor::Policy,
+                    }],
+                });
+                next.current_task = Some(id);
+            }
+            next.assignment_version += 1;
+            changes.robots.push(next);
+        }
+        let mut counters = self.counters();
+        counters.replans += 1;
+        counters.state = if completed {
+            MissionState::Completed
+        } else {
+            MissionState::Active
+        };
+        if counters.state != self.record.state {
+            // Every robot's assignment carries the mission state: push it.
+            for slot in self.robots.values() {
+                if !changes.robots.iter().any(|r| r.id == slot.record.id) {
+                    let mut next = slot.record.clone();
+                    next.assignment_version += 1;
+                    changes.robots.push(next);
+                }
+            }
+        }
+        changes.mission = Some(counters);
+        changes
+    }
+
+    /// Resets the replanning triggers after a committed replanning.
+    pub(crate) fn mark_replanned(&mut self, now: Instant) {
+        self.last_replan = now;
+        self.frontier_at_replan = self.frontier.len();
+        self.frontier_churn = 0;
+        self.pending_replan = None;
+    }
+}
+
+fn transition(
+    task: &TaskRecord,
+    to: TaskState,
+    cause: &str,
+    actor: Actor,
+    at: Timestamp,
+) -> TaskChange {
+    TaskChange {
+        task_id: task.id,
+        state: to,
+        transition: Transition {
+            from: Some(task.state),
+            to,
+            at,
+            cause: cause.to_owned(),
+            actor,
+        },
+    }
+}

@@ -1,0 +1,671 @@
+//! Proto ↔ domain conversions. Requests are validated here, field by field,
+//! with messages that name the field and say what is allowed; nothing past
+//! this module sees a proto type.
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use exploration::fusion::Patch;
+use exploration::grid::{CellRect, GridFrame};
+use exploration::math::Point2;
+use exploration::policy::{Capabilities, PolicyConfig, catalogue};
+use exploration_proto::v1 as pb;
+
+use crate::domain::{
+    Actor, Assignment, Bid, Heartbeat, MapUpdate, MissionSpec, MissionState, Pose, ReplanSettings,
+    RobotSpec, RobotState, TaskRecord, TaskState, Timestamp, Transition,
+};
+use crate::error::Error;
+use crate::executive::{MissionSummary, RobotSummary};
+
+/// Longest side of a mission grid, cells.
+pub const MAX_GRID_SIDE: u32 = 20_000;
+/// Most cells in one mission grid.
+pub const MAX_GRID_CELLS: u64 = 25_000_000;
+/// Most patches in one map update.
+pub const MAX_PATCHES: usize = 4_096;
+/// Most bids in one submission.
+pub const MAX_BIDS: usize = 10_000;
+/// Longest robot or mission name, characters.
+pub const MAX_NAME_CHARS: usize = 128;
+
+fn invalid(message: impl Into<String>) -> Error {
+    Error::InvalidArgument(message.into())
+}
+
+fn finite(value: f64, field: &str) -> Result<f64, Error> {
+    if value.is_finite() {
+        Ok(value)
+    } else {
+        Err(invalid(format!(
+            "{field} is {value}; it must be a finite number"
+        )))
+    }
+}
+
+fn in_range(value: f64, field: &str, min: f64, max: f64, unit: &str) -> Result<f64, Error> {
+    if value >= min && value <= max {
+        Ok(value)
+    } else {
+        Err(invalid(format!(
+            "{field} is {value}; it must lie in [{min}, {max}] {unit}"
+        )))
+    }
+}
+
+/// Checks a name: present, not too long.
+pub fn name(value: String, field: &str) -> Result<String, Error> {
+    let trimmed = value.trim();
+    if trimmed.is_empty() {
+        return Err(invalid(format!(
+            "{field} is empty; give a name of 1 to {MAX_NAME_CHARS} characters"
+        )));
+    }
+    if trimmed.chars().count() > MAX_NAME_CHARS {
+        return Err(invalid(format!(
+            "{field} is longer than {MAX_NAME_CHARS} characters"
+        )));
+    }
+    Ok(trimmed.to_owned())
+}
+
+/// A point from its proto form.
+pub fn point(p: Option<pb::Point>, field: &str) -> Result<Point2, Error> {
+    let p = p.ok_or_else(|| invalid(format!("{field} is required")))?;
+    Ok(Point2::new(
+        finite(p.x, &format!("{field}.x"))?,
+        finite(p.y, &format!("{field}.y"))?,
+    ))
+}
+
+/// A pose from its proto form.
+pub fn pose(p: Option<pb::Pose>, field: &str) -> Result<Pose, Error> {
+    let p = p.ok_or_else(|| invalid(format!("{field} is required")))?;
+    Ok(Pose {
+        position: Point2::new(
+            finite(p.x, &format!("{field}.x"))?,
+            finite(p.y, &format!("{field}.y"))?,
+        ),
+        heading: exploration::math::normalize_angle(finite(p.theta, &format!("{field}.theta"))?),
+    })
+}
+
+/// A grid frame from its proto form.
+pub fn frame(f: pb::MapFrame) -> Result<GridFrame, Error> {
+    let resolution = in_range(
+        f.resolution,
+        "frame.resolution",
+        0.01,
+        10.0,
+        "metres per cell",
+    )?;
+    let origin = match f.origin {
+        Some(_) => point(f.origin, "frame.origin")?,
+        None => Point2::origin(),
+    };
+    for (side, value) in [("frame.width", f.width), ("frame.height", f.height)] {
+        if value == 0 || value > MAX_GRID_SIDE {
+            return Err(invalid(format!(
+                "{side} is {value} cells; it must lie in [1, {MAX_GRID_SIDE}]"
+            )));
+        }
+    }
+    let cells = u64::from(f.width) * u64::from(f.height);
+    if cells > MAX_GRID_CELLS {
+        return Err(invalid(format!(
+            "the map is {}×{} = {cells} cells; at most {MAX_GRID_CELLS} are allowed (use coarser cells)",
+            f.width, f.height
+        )));
+    }
+    Ok(GridFrame::new(resolution, origin, f.width, f.height))
+}
+
+/// A grid frame in proto form.
+pub fn frame_to_proto(f: &GridFrame) -> pb::MapFrame {
+    pb::MapFrame {
+        resolution: f.resolution,
+        origin: Some(pb::Point {
+            x: f.origin.x,
+            y: f.origin.y,
+        }),
+        width: f.width,
+        height: f.height,
+    }
+}
+
+/// A policy choice; an absent or nameless spec means the default policy.
+pub fn policy(spec: Option<pb::PolicySpec>) -> Result<PolicyConfig, Error> {
+    let spec = spec.unwrap_or_default();
+    let name = if spec.name.trim().is_empty() {
+        "burgard".to_owned()
+    } else {
+        spec.name.trim().to_owned()
+    };
+    let overrides: BTreeMap<String, f64> = spec.params.into_iter().collect();
+    Ok(PolicyConfig::new(&name, &overrides)?)
+}
+
+/// A policy choice in proto form.
+pub fn policy_to_proto(p: &PolicyConfig) -> pb::PolicySpec {
+    pb::PolicySpec {
+        name: p.name().to_owned(),
+        params: p
+            .params()
+            .iter()
+            .map(|(k, v)| ((*k).to_owned(), *v))
+            .collect(),
+    }
+}
+
+/// Replanning settings; zero fields take the defaults.
+pub fn replan(settings: Option<pb::ReplanSettings>) -> Result<ReplanSettings, Error> {
+    let defaults = ReplanSettings::default();
+    let Some(s) = settings else {
+        return Ok(defaults);
+    };
+    let or_default = |v: f64, d: f64| if v == 0.0 { d } else { v };
+    Ok(ReplanSettings {
+        distance_m: in_range(
+            or_default(s.distance_m, defaults.distance_m),
+            "replan.distance_m",
+            0.01,
+            1e6,
+            "metres",
+        )?,
+        interval: Duration::from_secs_f64(in_range(
+            or_default(s.interval_s, defaults.interval.as_secs_f64()),
+            "replan.interval_s",
+            0.001,
+            1e6,
+            "seconds",
+        )?),
+        frontier_change: in_range(
+            or_default(s.frontier_change, defaults.frontier_change),
+            "replan.frontier_change",
+            0.0,
+            1.0,
+            "",
+        )?,
+    })
+}
+
+impl From<&ReplanSettings> for pb::ReplanSettings {
+    fn from(s: &ReplanSettings) -> Self {
+        Self {
+            distance_m: s.distance_m,
+            interval_s: s.interval.as_secs_f64(),
+            frontier_change: s.frontier_change,
+        }
+    }
+}
+
+impl TryFrom<pb::CreateMissionRequest> for MissionSpec {
+    type Error = Error;
+
+    fn try_from(r: pb::CreateMissionRequest) -> Result<Self, Error> {
+        Ok(Self {
+            name: name(r.name, "name")?,
+            frame: frame(r.frame.ok_or_else(|| invalid("frame is required"))?)?,
+            policy: policy(r.policy)?,
+            replan: replan(r.replan)?,
+        })
+    }
+}
+
+fn timestamp(t: Timestamp) -> prost_types::Timestamp {
+    let millis = t.millis();
+    prost_types::Timestamp {
+        seconds: millis.div_euclid(1000),
+        nanos: (millis.rem_euclid(1000) * 1_000_000) as i32,
+    }
+}
+
+fn mission_state(s: MissionState) -> pb::MissionState {
+    match s {
+        MissionState::Active => pb::MissionState::Active,
+        MissionState::Completed => pb::MissionState::Completed,
+    }
+}
+
+impl From<&MissionSummary> for pb::Mission {
+    fn from(m: &MissionSummary) -> Self {
+        let r = &m.record;
+        Self {
+            id: r.id,
+            name: r.spec.name.clone(),
+            frame: Some(frame_to_proto(&r.spec.frame)),
+            policy: Some(policy_to_proto(&r.spec.policy)),
+            replan: Some((&r.spec.replan).into()),
+            state: mission_state(r.state) as i32,
+            created_at: Some(timestamp(r.created_at)),
+            robots: m.robots as u32,
+            known_cells: m.known_cells,
+            frontier_cells: m.frontier_cells,
+            replans: r.replans,
+            map_updates: r.map_updates,
+        }
+    }
+}
+
+/// The policy catalogue in proto form.
+pub fn policies() -> pb::ListPoliciesResponse {
+    pb::ListPoliciesResponse {
+        policies: catalogue()
+            .iter()
+            .map(|d| pb::PolicyInfo {
+                name: d.name.to_owned(),
+                description: d.description.to_owned(),
+                params: d
+                    .params
+                    .iter()
+                    .map(|p| pb::ParameterInfo {
+                        name: p.name.to_owned(),
+                        description: p.description.to_owned(),
+                        default_value: p.default,
+                        min: p.min,
+                        max: p.max,
+                    })
+                    .collect(),
+            })
+            .collect(),
+    }
+}
+
+impl TryFrom<Option<pb::RobotCapabilities>> for CapabilitiesInput {
+    type Error = Error;
+
+    fn try_from(c: Option<pb::RobotCapabilities>) -> Result<Self, Error> {
+        let c = c.ok_or_else(|| invalid("capabilities are required"))?;
+        let positive = |v: f64, field: &str, max: f64, unit: &str| {
+            if v > 0.0 && v <= max {
+                Ok(v)
+            } else {
+                Err(invalid(format!(
+                    "{field} is {v}; it must lie in (0, {max}] {unit}"
+                )))
+            }
+        };
+        Ok(Self(Capabilities {
+            sensor_range_m: positive(
+                c.sensor_range_m,
+                "capabilities.sensor_range_m",
+                100.0,
+                "metres",
+            )?,
+            field_of_view_rad: positive(
+                c.field_of_view_rad,
+                "capabilities.field_of_view_rad",
+                std::f64::consts::TAU,
+                "radians",
+            )?,
+            speed_mps: positive(
+                c.speed_mps,
+                "capabilities.speed_mps",
+                100.0,
+                "metres per second",
+            )?,
+            footprint_radius_m: in_range(
+                c.footprint_radius_m,
+                "capabilities.footprint_radius_m",
+                0.0,
+                10.0,
+                "metres",
+            )?,
+        }))
+    }
+}
+
+/// Validated capabilities (a newtype so the conversion can live here).
+#[derive(Debug, Clone, Copy)]
+pub struct CapabilitiesInput(pub Capabilities);
+
+impl TryFrom<pb::RegisterRobotRequest> for RobotSpec {
+    type Error = Error;
+
+    fn try_from(r: pb::RegisterRobotRequest) -> Result<Self, Error> {
+        Ok(Self {
+            name: name(r.name, "name")?,
+            capabilities: CapabilitiesInput::try_from(r.capabilities)?.0,
+            pose: pose(r.pose, "pose")?,
+        })
+    }
+}
+
+fn capabilities(c: &Capabilities) -> pb::RobotCapabilities {
+    pb::RobotCapabilities {
+        sensor_range_m: c.sensor_range_m,
+        field_of_view_rad: c.field_of_view_rad,
+        speed_mps: c.speed_mps,
+        footprint_radius_m: c.footprint_radius_m,
+    }
+}
+
+fn robot_state(s: RobotState) -> pb::RobotState {
+    match s {
+        RobotState::Idle => pb::RobotState::Idle,
+        RobotState::Moving => pb::RobotState::Moving,
+        RobotState::Arrived => pb::RobotState::Arrived,
+        RobotState::Failed => pb::RobotState::Failed,
+    }
+}
+
+impl From<&RobotSummary> for pb::Robot {
+    fn from(s: &RobotSummary) -> Self {
+        let r = &s.record;
+        Self {
+            id: r.id,
+            mission_id: r.mission_id,
+            name: r.name.clone(),
+            capabilities: Some(capabilities(&r.capabilities)),
+            state: robot_state(r.state) as i32,
+            pose: Some(pb::Pose {
+                x: r.pose.position.x,
+                y: r.pose.position.y,
+                theta: r.pose.heading,
+            }),
+            task_id: r.current_task.unwrap_or(0),
+            last_map_seq: r.last_map_seq,
+            last_seen: Some(timestamp(r.last_seen)),
+            distance_m: r.distance_m,
+            target: s.target.map(|t| pb::Point { x: t.x, y: t.y }),
+        }
+    }
+}
+
+impl TryFrom<pb::HeartbeatRequest> for Heartbeat {
+    type Error = Error;
+
+    fn try_from(r: pb::HeartbeatRequest) -> Result<Self, Error> {
+        let state = match pb::RobotState::try_from(r.state) {
+            Ok(pb::RobotState::Idle) => RobotState::Idle,
+            Ok(pb::RobotState::Moving) => RobotState::Moving,
+            Ok(pb::RobotState::Arrived) => RobotState::Arrived,
+            Ok(pb::RobotState::Failed) => RobotState::Failed,
+            Ok(pb::RobotState::Unspecified) | Err(_) => {
+                return Err(invalid(format!(
+                    "state {} is not a robot state; send IDLE, MOVING, ARRIVED or FAILED",
+                    r.state
+                )));
+            }
+        };
+        let task_id = (r.task_id != 0).then_some(r.task_id);
+        if matches!(state, RobotState::Arrived | RobotState::Failed) && task_id.is_none() {
+            return Err(invalid(
+                "ARRIVED and FAILED must name the task they refer to in task_id",
+            ));
+        }
+        Ok(Self {
+            pose: pose(r.pose, "pose")?,
+            state,
+            task_id,
+            reason: r.reason.chars().take(500).collect(),
+        })
+    }
+}
+
+impl TryFrom<pb::MapPatch> for PatchInput {
+    type Error = Error;
+
+    fn try_from(p: pb::MapPatch) -> Result<Self, Error> {
+        let (Ok(x), Ok(y)) = (i32::try_from(p.x), i32::try_from(p.y)) else {
+            return Err(invalid(format!(
+                "patch corner ({}, {}) lies outside any mission grid",
+                p.x, p.y
+            )));
+        };
+        let rect = CellRect::new(x, y, p.width, p.height);
+        let unknown: Vec<bool> = p.unknown.iter().map(|&b| b != 0).collect();
+        let patch = match pb::CellEncoding::try_from(p.encoding) {
+            Ok(pb::CellEncoding::Probability) => {
+                Patch::from_probabilities(rect, &p.values, &unknown)?
+            }
+            Ok(pb::CellEncoding::LogOdds) => Patch::from_log_odds(rect, &p.values, &unknown)?,
+            Ok(pb::CellEncoding::Unspecified) | Err(_) => {
+                return Err(invalid(format!(
+                    "encoding {} is not a cell encoding; send PROBABILITY or LOG_ODDS",
+                    p.encoding
+                )));
+            }
+        };
+        Ok(Self(patch))
+    }
+}
+
+/// A validated patch (a newtype so the conversion can live here).
+#[derive(Debug, Clone)]
+pub struct PatchInput(pub Patch);
+
+impl TryFrom<pb::UpdateMapRequest> for MapUpdate {
+    type Error = Error;
+
+    fn try_from(r: pb::UpdateMapRequest) -> Result<Self, Error> {
+        if r.patches.len() > MAX_PATCHES {
+            return Err(invalid(format!(
+                "{} patches in one update; send at most {MAX_PATCHES} (merge them or split the update)",
+                r.patches.len()
+            )));
+        }
+        let patches = r
+            .patches
+            .into_iter()
+            .enumerate()
+            .map(|(i, p)| {
+                PatchInput::try_from(p)
+                    .map(|p| p.0)
+                    .map_err(|e| invalid(format!("patch {i}: {e}")))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self {
+            seq: r.seq,
+            pose: pose(r.pose, "pose")?,
+            patches,
+        })
+    }
+}
+
+/// Bids from their proto form.
+pub fn bids(bids: Vec<pb::Bid>) -> Result<Vec<Bid>, Error> {
+    if bids.len() > MAX_BIDS {
+        return Err(Error::ResourceExhausted(format!(
+            "{} bids in one submission; at most {MAX_BIDS} are kept per robot",
+            bids.len()
+        )));
+    }
+    bids.into_iter()
+        .enumerate()
+        .map(|(i, b)| {
+            let region = b
+                .gain_region
+                .ok_or_else(|| invalid(format!("bids[{i}].gain_region is required")))?;
+            let min = Point2::new(
+                finite(region.min_x, &format!("bids[{i}].gain_region.min_x"))?,
+                finite(region.min_y, &format!("bids[{i}].gain_region.min_y"))?,
+            );
+            let max = Point2::new(
+                finite(region.max_x, &format!("bids[{i}].gain_region.max_x"))?,
+                finite(region.max_y, &format!("bids[{i}].gain_region.max_y"))?,
+            );
+            if min.x > max.x || min.y > max.y {
+                return Err(invalid(format!("bids[{i}].gain_region has min above max")));
+            }
+            Ok(Bid {
+                target: point(b.target, &format!("bids[{i}].target"))?,
+                path_cost: in_range(
+                    b.path_cost,
+                    &format!("bids[{i}].path_cost"),
+                    0.0,
+                    f64::MAX,
+                    "",
+                )?,
+                information_gain: in_range(
+                    b.information_gain,
+                    &format!("bids[{i}].information_gain"),
+                    0.0,
+                    f64::MAX,
+                    "",
+                )?,
+                gain_region: (min, max),
+            })
+        })
+        .collect()
+}
+
+impl From<&Assignment> for pb::Assignment {
+    fn from(a: &Assignment) -> Self {
+        Self {
+            robot_id: a.robot_id,
+            version: a.version,
+            task_id: a.task.map_or(0, |t| t.id),
+            target: a.task.map(|t| pb::Point {
+                x: t.target.x,
+                y: t.target.y,
+            }),
+            policy: a.policy.to_owned(),
+            utility: a.task.map_or(0.0, |t| t.utility),
+            path_cost: a.task.map_or(0.0, |t| t.path_cost),
+            mission_state: mission_state(a.mission_state) as i32,
+        }
+    }
+}
+
+fn task_state(s: TaskState) -> pb::TaskState {
+    match s {
+        TaskState::Assigned => pb::TaskState::Assigned,
+        TaskState::Active => pb::TaskState::Active,
+        TaskState::Reached => pb::TaskState::Reached,
+        TaskState::Preempted => pb::TaskState::Preempted,
+        TaskState::Overridden => pb::TaskState::Overridden,
+        TaskState::Failed => pb::TaskState::Failed,
+        TaskState::Released => pb::TaskState::Released,
+        TaskState::Cancelled => pb::TaskState::Cancelled,
+    }
+}
+
+fn actor(a: Actor) -> String {
+    a.as_str().to_owned()
+}
+
+impl From<&Transition> for pb::TaskTransition {
+    fn from(t: &Transition) -> Self {
+        Self {
+            from: t.from.map_or(pb::TaskState::Unspecified, task_state) as i32,
+            to: task_state(t.to) as i32,
+            at: Some(timestamp(t.at)),
+            cause: t.cause.clone(),
+            actor: actor(t.actor),
+        }
+    }
+}
+
+impl From<&TaskRecord> for pb::Task {
+    fn from(t: &TaskRecord) -> Self {
+        Self {
+            id: t.id,
+            mission_id: t.mission_id,
+            robot_id: t.robot_id,
+            target: Some(pb::Point {
+                x: t.target.x,
+                y: t.target.y,
+            }),
+            state: task_state(t.state) as i32,
+            policy: t.policy.clone(),
+            utility: t.utility,
+            path_cost: t.path_cost,
+            created_at: Some(timestamp(t.created_at)),
+            updated_at: Some(timestamp(t.updated_at)),
+            transitions: t.transitions.iter().map(Into::into).collect(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pb_frame(resolution: f64, width: u32, height: u32) -> pb::MapFrame {
+        pb::MapFrame {
+            resolution,
+            origin: Some(pb::Point { x: 1.0, y: 2.0 }),
+            width,
+            height,
+        }
+    }
+
+    #[test]
+    fn frames_reject_zero_absurd_and_non_finite_sizes() {
+        assert!(frame(pb_frame(0.05, 100, 80)).is_ok());
+        for bad in [
+            pb_frame(0.05, 0, 80),
+            pb_frame(0.05, 100, 0),
+            pb_frame(0.05, 20_001, 10),
+            pb_frame(0.05, 20_000, 20_000),
+            pb_frame(0.0, 10, 10),
+            pb_frame(f64::NAN, 10, 10),
+            pb_frame(100.0, 10, 10),
+        ] {
+            let err = frame(bad).unwrap_err();
+            assert!(matches!(err, Error::InvalidArgument(_)), "{bad:?}: {err}");
+        }
+        let mut nan_origin = pb_frame(0.05, 10, 10);
+        nan_origin.origin = Some(pb::Point {
+            x: f64::NAN,
+            y: 0.0,
+        });
+        assert!(frame(nan_origin).is_err());
+    }
+
+    #[test]
+    fn patches_name_the_broken_part() {
+        let patch = |encoding: pb::CellEncoding, values: Vec<f32>| pb::MapPatch {
+            x: 0,
+            y: 0,
+            width: 2,
+            height: 1,
+            encoding: encoding as i32,
+            values,
+            unknown: vec![],
+        };
+        assert!(PatchInput::try_from(patch(pb::CellEncoding::Probability, vec![0.1, 0.9])).is_ok());
+        let err =
+            PatchInput::try_from(patch(pb::CellEncoding::Unspecified, vec![0.1, 0.9])).unwrap_err();
+        assert!(err.to_string().contains("PROBABILITY"), "{err}");
+        let err =
+            PatchInput::try_from(patch(pb::CellEncoding::Probability, vec![0.1])).unwrap_err();
+        assert!(err.to_string().contains("carries 1 values"), "{err}");
+        let err = PatchInput::try_from(patch(pb::CellEncoding::Probability, vec![0.1, f32::NAN]))
+            .unwrap_err();
+        assert!(err.to_string().contains("not a finite number"), "{err}");
+        let err = PatchInput::try_from(patch(pb::CellEncoding::Probability, vec![0.1, -0.5]))
+            .unwrap_err();
+        assert!(err.to_string().contains("[0, 1]"), "{err}");
+        let mut far = patch(pb::CellEncoding::LogOdds, vec![0.1, 0.2]);
+        far.x = u32::MAX;
+        assert!(PatchInput::try_from(far).is_err());
+    }
+
+    #[test]
+    fn heartbeats_must_name_the_task_they_end() {
+        let request = pb::HeartbeatRequest {
+            robot_id: 1,
+            pose: Some(pb::Pose::default()),
+            state: pb::RobotState::Arrived as i32,
+            task_id: 0,
+            reason: String::new(),
+        };
+        assert!(Heartbeat::try_from(request.clone()).is_err());
+        assert!(
+            Heartbeat::try_from(pb::HeartbeatRequest {
+                task_id: 3,
+                ..request.clone()
+            })
+            .is_ok()
+        );
+        assert!(
+            Heartbeat::try_from(pb::HeartbeatRequest {
+                state: 42,
+                ..request
+            })
+            .is_err()
+        );
+    }
+}

@@ -1,0 +1,249 @@
+//! The gRPC handlers: thin adapters that convert a request into domain
+//! types ([`convert`]), call the [`Executive`], and convert the answer back.
+//! Errors become statuses in one place, `impl From<Error> for Status`.
+
+use std::pin::Pin;
+use std::sync::Arc;
+
+use futures::{Stream, StreamExt};
+use tokio_stream::wrappers::WatchStream;
+use tokio_util::sync::CancellationToken;
+use tonic::{Request, Response, Status};
+
+use exploration::grid::UNKNOWN;
+use exploration_proto::v1 as pb;
+use exploration_proto::v1::fleet_server::Fleet;
+use exploration_proto::v1::missions_server::Missions;
+
+use crate::domain::{Heartbeat, MapUpdate, MissionSpec, RobotSpec};
+use crate::error::Error;
+use crate::executive::{Executive, RobotSummary};
+use crate::store::TaskFilter;
+
+pub mod convert;
+
+/// Both services of `exploration.v1` over one executive.
+#[derive(Debug, Clone)]
+pub struct ExplorationService {
+    executive: Arc<Executive>,
+    shutdown: CancellationToken,
+}
+
+impl ExplorationService {
+    /// Serves `executive`; streams end when `shutdown` is cancelled.
+    pub fn new(executive: Arc<Executive>, shutdown: CancellationToken) -> Self {
+        Self {
+            executive,
+            shutdown,
+        }
+    }
+}
+
+fn required_id(id: u64, field: &str) -> Result<u64, Error> {
+    if id == 0 {
+        Err(Error::InvalidArgument(format!(
+            "{field} is required (identities start at 1)"
+        )))
+    } else {
+        Ok(id)
+    }
+}
+
+#[tonic::async_trait]
+impl Missions for ExplorationService {
+    #[tracing::instrument(skip_all, fields(name = %request.get_ref().name))]
+    async fn create_mission(
+        &self,
+        request: Request<pb::CreateMissionRequest>,
+    ) -> Result<Response<pb::Mission>, Status> {
+        let spec = MissionSpec::try_from(request.into_inner())?;
+        let mission = self.executive.create_mission(spec).await?;
+        Ok(Response::new((&mission).into()))
+    }
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
+    async fn get_mission(
+        &self,
+        request: Request<pb::GetMissionRequest>,
+    ) -> Result<Response<pb::Mission>, Status> {
+        let id = required_id(request.into_inner().mission_id, "mission_id")?;
+        let mission = self.executive.mission(id).await?;
+        Ok(Response::new((&mission).into()))
+    }
+
+    #[tracing::instrument(skip_all)]
+    async fn list_missions(
+        &self,
+        _request: Request<pb::ListMissionsRequest>,
+    ) -> Result<Response<pb::ListMissionsResponse>, Status> {
+        let missions = self.executive.missions().await;
+        Ok(Response::new(pb::ListMissionsResponse {
+            missions: missions.iter().map(Into::into).collect(),
+        }))
+    }
+
+    #[tracing::instrument(skip_all)]
+    async fn list_policies(
+        &self,
+        _request: Request<pb::ListPoliciesRequest>,
+    ) -> Result<Response<pb::ListPoliciesResponse>, Status> {
+        Ok(Response::new(convert::policies()))
+    }
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
+    async fn list_robots(
+        &self,
+        request: Request<pb::ListRobotsRequest>,
+    ) -> Result<Response<pb::ListRobotsResponse>, Status> {
+        let id = required_id(request.into_inner().mission_id, "mission_id")?;
+        let robots = self.executive.robots(id).await?;
+        Ok(Response::new(pb::ListRobotsResponse {
+            robots: robots.iter().map(Into::into).collect(),
+        }))
+    }
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id, robot = request.get_ref().robot_id))]
+    async fn list_tasks(
+        &self,
+        request: Request<pb::ListTasksRequest>,
+    ) -> Result<Response<pb::ListTasksResponse>, Status> {
+        let r = request.into_inner();
+        let filter = TaskFilter {
+            mission_id: required_id(r.mission_id, "mission_id")?,
+            robot_id: (r.robot_id != 0).then_some(r.robot_id),
+            limit: if r.limit == 0 {
+                1000
+            } else {
+                r.limit.min(100_000)
+            },
+        };
+        let tasks = self.executive.tasks(filter).await?;
+        Ok(Response::new(pb::ListTasksResponse {
+            tasks: tasks.iter().map(Into::into).collect(),
+        }))
+    }
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
+    async fn get_map(
+        &self,
+        request: Request<pb::GetMapRequest>,
+    ) -> Result<Response<pb::MapSnapshot>, Status> {
+        let id = required_id(request.into_inner().mission_id, "mission_id")?;
+        let map = self.executive.map(id).await?;
+        let frame = *map.grid.frame();
+        Ok(Response::new(pb::MapSnapshot {
+            mission_id: id,
+            frame: Some(convert::frame_to_proto(&frame)),
+            cells: map
+                .grid
+                .cells()
+                .iter()
+                .map(|&v| if v == UNKNOWN { 255 } else { v })
+                .collect(),
+            frontier: map
+                .frontier
+                .iter()
+                .map(|p| pb::Point { x: p.x, y: p.y })
+                .collect(),
+            robots: map.robots.iter().map(|r: &RobotSummary| r.into()).collect(),
+        }))
+    }
+}
+
+type AssignmentStream = Pin<Box<dyn Stream<Item = Result<pb::Assignment, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl Fleet for ExplorationService {
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id, name = %request.get_ref().name))]
+    async fn register_robot(
+        &self,
+        request: Request<pb::RegisterRobotRequest>,
+    ) -> Result<Response<pb::RegisterRobotResponse>, Status> {
+        let r = request.into_inner();
+        let mission_id = required_id(r.mission_id, "mission_id")?;
+        let spec = RobotSpec::try_from(r)?;
+        let (record, resumed) = self.executive.register_robot(mission_id, spec).await?;
+        let summary = RobotSummary {
+            record,
+            target: None,
+        };
+        Ok(Response::new(pb::RegisterRobotResponse {
+            robot: Some((&summary).into()),
+            resumed,
+        }))
+    }
+
+    #[tracing::instrument(skip_all, fields(robot = request.get_ref().robot_id, state = request.get_ref().state))]
+    async fn heartbeat(
+        &self,
+        request: Request<pb::HeartbeatRequest>,
+    ) -> Result<Response<pb::HeartbeatResponse>, Status> {
+        let r = request.into_inner();
+        let robot = required_id(r.robot_id, "robot_id")?;
+        let heartbeat = Heartbeat::try_from(r)?;
+        let assignment = self.executive.heartbeat(robot, heartbeat).await?;
+        Ok(Response::new(pb::HeartbeatResponse {
+            assignment: Some((&assignment).into()),
+        }))
+    }
+
+    #[tracing::instrument(skip_all, fields(robot = request.get_ref().robot_id, seq = request.get_ref().seq))]
+    async fn update_map(
+        &self,
+        request: Request<pb::UpdateMapRequest>,
+    ) -> Result<Response<pb::UpdateMapResponse>, Status> {
+        let r = request.into_inner();
+        let robot = required_id(r.robot_id, "robot_id")?;
+        let update = MapUpdate::try_from(r)?;
+        let outcome = self.executive.update_map(robot, update).await?;
+        Ok(Response::new(pb::UpdateMapResponse {
+            applied_seq: outcome.applied_seq,
+            assignment: Some((&outcome.assignment).into()),
+            frontier_cells: outcome.frontier_cells,
+            mission_state: pb::Assignment::from(&outcome.assignment).mission_state,
+        }))
+    }
+
+    #[tracing::instrument(skip_all, fields(robot = request.get_ref().robot_id, bids = request.get_ref().bids.len()))]
+    async fn submit_bids(
+        &self,
+        request: Request<pb::SubmitBidsRequest>,
+    ) -> Result<Response<pb::SubmitBidsResponse>, Status> {
+        let r = request.into_inner();
+        let robot = required_id(r.robot_id, "robot_id")?;
+        let bids = convert::bids(r.bids)?;
+        let (accepted, assignment) = self.executive.submit_bids(robot, bids).await?;
+        Ok(Response::new(pb::SubmitBidsResponse {
+            accepted: accepted as u32,
+            assignment: Some((&assignment).into()),
+        }))
+    }
+
+    #[tracing::instrument(skip_all, fields(robot = request.get_ref().robot_id))]
+    async fn get_assignment(
+        &self,
+        request: Request<pb::GetAssignmentRequest>,
+    ) -> Result<Response<pb::Assignment>, Status> {
+        let robot = required_id(request.into_inner().robot_id, "robot_id")?;
+        let assignment = self.executive.assignment(robot).await?;
+        Ok(Response::new((&assignment).into()))
+    }
+
+    type WatchAssignmentStream = AssignmentStream;
+
+    #[tracing::instrument(skip_all, fields(robot = request.get_ref().robot_id))]
+    async fn watch_assignment(
+        &self,
+        request: Request<pb::WatchAssignmentRequest>,
+    ) -> Result<Response<Self::WatchAssignmentStream>, Status> {
+        let robot = required_id(request.into_inner().robot_id, "robot_id")?;
+        let receiver = self.executive.watch(robot).await?;
+        let shutdown = self.shutdown.clone().cancelled_owned();
+        // The stream yields the current assignment, then each change, and ends
+        // at shutdown so that a graceful stop is not held up by watchers.
+        let stream = WatchStream::new(receiver)
+            .map(|a| Ok(pb::Assignment::from(&a)))
+            .take_until(shutdown);
+        Ok(Response::new(Box::pin(stream)))
+    }
+}

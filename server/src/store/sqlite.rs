@@ -1,0 +1,705 @@
+//! The SQLite store: one file, WAL journal, migrations embedded at build time.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::str::FromStr;
+use std::time::Duration;
+
+use async_trait::async_trait;
+use sqlx::sqlite::{
+    SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteRow,
+    SqliteSynchronous,
+};
+use sqlx::{Row, Sqlite, Transaction};
+
+use super::{Changeset, LoggedPatch, Store, StoreError, TaskFilter};
+use crate::domain::{
+    Actor, Bid, MissionId, MissionRecord, MissionSpec, MissionState, Pose, ReplanSettings, RobotId,
+    RobotRecord, RobotSpec, RobotState, TaskId, TaskRecord, TaskState, Timestamp, Transition,
+};
+use exploration::fusion::Patch;
+use exploration::grid::{CellRect, GridFrame};
+use exploration::math::Point2;
+use exploration::policy::{Capabilities, PolicyConfig};
+
+static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
+
+/// How hard SQLite works to keep a commit across failures.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Durability {
+    /// Every commit survives a power cut (`synchronous = FULL`).
+    #[default]
+    Full,
+    /// Every commit survives a crash of the process, the last ones may not
+    /// survive a power cut (`synchronous = NORMAL`, safe in WAL mode).
+    Normal,
+}
+
+/// Missions, robots, tasks and the map log in one SQLite file.
+#[derive(Debug, Clone)]
+pub struct SqliteStore {
+    pool: SqlitePool,
+}
+
+impl SqliteStore {
+    /// Opens (creating if needed) the database at `path` and applies migrations.
+    pub async fn open(path: &Path, durability: Durability) -> Result<Self, StoreError> {
+        let options = SqliteConnectOptions::from_str("sqlite:")?
+            .filename(path)
+            .create_if_missing(true)
+            .journal_mode(SqliteJournalMode::Wal)
+            .synchronous(match durability {
+                Durability::Full => SqliteSynchronous::Full,
+                Durability::Normal => SqliteSynchronous::Normal,
+            })
+            .foreign_keys(true)
+            .busy_timeout(Duration::from_secs(10));
+        let pool = SqlitePoolOptions::new()
+            .max_connections(4)
+            .connect_with(options)
+            .await?;
+        MIGRATOR.run(&pool).await?;
+        Ok(Self { pool })
+    }
+
+    /// Closes every connection, checkpointing the WAL.
+    pub async fn close(&self) {
+        self.pool.close().await;
+    }
+}
+
+fn corrupt(what: impl Into<String>) -> StoreError {
+    StoreError::Corrupt(what.into())
+}
+
+fn mission_from_row(row: &SqliteRow) -> Result<MissionRecord, StoreError> {
+    let id: i64 = row.try_get("id")?;
+    let policy: String = row.try_get("policy")?;
+    let params_json: String = row.try_get("policy_params")?;
+    let params: BTreeMap<String, f64> = serde_json::from_str(&params_json)
+        .map_err(|e| corrupt(format!("mission {id}: policy parameters: {e}")))?;
+    let policy =
+        PolicyConfig::new(&policy, &params).map_err(|e| corrupt(format!("mission {id}: {e}")))?;
+    let state: String = row.try_get("state")?;
+    Ok(MissionRecord {
+        id: id as MissionId,
+        spec: MissionSpec {
+            name: row.try_get("name")?,
+            frame: GridFrame::new(
+                row.try_get("resolution")?,
+                Point2::new(row.try_get("origin_x")?, row.try_get("origin_y")?),
+                row.try_get::<i64, _>("width")? as u32,
+                row.try_get::<i64, _>("height")? as u32,
+            ),
+            policy,
+            replan: ReplanSettings {
+                distance_m: row.try_get("replan_distance_m")?,
+                interval: Duration::from_secs_f64(row.try_get("replan_interval_s")?),
+                frontier_change: row.try_get("replan_frontier_change")?,
+            },
+        },
+        state: MissionState::parse(&state)
+            .ok_or_else(|| corrupt(format!("mission {id}: state {state:?}")))?,
+        replans: row.try_get::<i64, _>("replans")? as u64,
+        map_updates: row.try_get::<i64, _>("map_updates")? as u64,
+        created_at: Timestamp(row.try_get("created_at")?),
+    })
+}
+
+fn robot_from_row(row: &SqliteRow) -> Result<RobotRecord, StoreError> {
+    let id: i64 = row.try_get("id")?;
+    let state: String = row.try_get("state")?;
+    Ok(RobotRecord {
+        id: id as RobotId,
+        mission_id: row.try_get::<i64, _>("mission_id")? as MissionId,
+        name: row.try_get("name")?,
+        capabilities: Capabilities {
+            sensor_range_m: row.try_get("sensor_range_m")?,
+            field_of_view_rad: row.try_get("field_of_view_rad")?,
+            speed_mps: row.try_get("speed_mps")?,
+            footprint_radius_m: row.try_get("footprint_radius_m")?,
+        },
+        state: RobotState::parse(&state)
+            .ok_or_else(|| corrupt(format!("robot {id}: state {state:?}")))?,
+        pose: Pose {
+            position: Point2::new(row.try_get("pose_x")?, row.try_get("pose_y")?),
+            heading: row.try_get("pose_theta")?,
+        },
+        last_map_seq: row.try_get::<i64, _>("last_map_seq")? as u64,
+        distance_m: row.try_get("distance_m")?,
+        assignment_version: row.try_get::<i64, _>("assignment_version")? as u64,
+        assigned_distance_m: row.try_get("assigned_distance_m")?,
+        current_task: row
+            .try_get::<Option<i64>, _>("current_task_id")?
+            .map(|t| t as TaskId),
+        last_seen: Timestamp(row.try_get("last_seen")?),
+    })
+}
+
+fn task_from_row(row: &SqliteRow) -> Result<TaskRecord, StoreError> {
+    let id: i64 = row.try_get("id")?;
+    let state: String = row.try_get("state")?;
+    Ok(TaskRecord {
+        id: id as TaskId,
+        mission_id: row.try_get::<i64, _>("mission_id")? as MissionId,
+        robot_id: row.try_get::<i64, _>("robot_id")? as RobotId,
+        target: Point2::new(row.try_get("target_x")?, row.try_get("target_y")?),
+        state: TaskState::parse(&state)
+            .ok_or_else(|| corrupt(format!("task {id}: state {state:?}")))?,
+        policy: row.try_get("policy")?,
+        utility: row.try_get("utility")?,
+        path_cost: row.try_get("path_cost")?,
+        created_at: Timestamp(row.try_get("created_at")?),
+        updated_at: Timestamp(row.try_get("updated_at")?),
+        transitions: Vec::new(),
+    })
+}
+
+fn transition_from_row(row: &SqliteRow) -> Result<Transition, StoreError> {
+    let from: Option<String> = row.try_get("from_state")?;
+    let to: String = row.try_get("to_state")?;
+    let actor: String = row.try_get("actor")?;
+    Ok(Transition {
+        from: match from {
+            Some(s) => Some(
+                TaskState::parse(&s).ok_or_else(|| corrupt(format!("transition from {s:?}")))?,
+            ),
+            None => None,
+        },
+        to: TaskState::parse(&to).ok_or_else(|| corrupt(format!("transition to {to:?}")))?,
+        at: Timestamp(row.try_get("at")?),
+        cause: row.try_get("cause")?,
+        actor: Actor::parse(&actor)
+            .ok_or_else(|| corrupt(format!("transition actor {actor:?}")))?,
+    })
+}
+
+/// Little-endian f32 per cell, NaN for unknown cells.
+fn encode_cells(patch: &Patch) -> Vec<u8> {
+    patch
+        .log_odds()
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect()
+}
+
+fn decode_cells(bytes: &[u8]) -> Vec<f32> {
+    bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+async fn write_robot(
+    tx: &mut Transaction<'_, Sqlite>,
+    robot: &RobotRecord,
+) -> Result<(), StoreError> {
+    sqlx::query(
+        "UPDATE robots SET sensor_range_m = ?1, field_of_view_rad = ?2, speed_mps = ?3, footprint_radius_m = ?4,
+                state = ?5, pose_x = ?6, pose_y = ?7, pose_theta = ?8, last_map_seq = ?9, distance_m = ?10,
+                assignment_version = ?11, assigned_distance_m = ?12, current_task_id = ?13, last_seen = ?14
+         WHERE id = ?15",
+    )
+    .bind(robot.capabilities.sensor_range_m)
+    .bind(robot.capabilities.field_of_view_rad)
+    .bind(robot.capabilities.speed_mps)
+    .bind(robot.capabilities.footprint_radius_m)
+    .bind(robot.state.as_str())
+    .bind(robot.pose.position.x)
+    .bind(robot.pose.position.y)
+    .bind(robot.pose.heading)
+    .bind(robot.last_map_seq as i64)
+    .bind(robot.distance_m)
+    .bind(robot.assignment_version as i64)
+    .bind(robot.assigned_distance_m)
+    .bind(robot.current_task.map(|t| t as i64))
+    .bind(robot.last_seen.millis())
+    .bind(robot.id as i64)
+    .execute(&mut **tx)
+    .await?;
+    Ok(())
+}
+
+async fn write_transition(
+    tx: &mut Transaction<'_, Sqlite>,
+    task_id: TaskId,
+    t: &Transition,
+) -> Result<(), StoreError> {
+    sqlx::query(
+        "INSERT INTO task_transitions (task_id, from_state, to_state, cause, actor, at) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+    )
+    .bind(task_id as i64)
+    .bind(t.from.map(TaskState::as_str))
+    .bind(t.to.as_str())
+    .bind(&t.cause)
+    .bind(t.actor.as_str())
+    .bind(t.at.millis())
+    .execute(&mut **tx)
+    .await?;
+    Ok(())
+}
+
+#[async_trait]
+impl Store for SqliteStore {
+    async fn create_mission(
+        &self,
+        spec: &MissionSpec,
+        now: Timestamp,
+    ) -> Result<MissionRecord, StoreError> {
+        let params: BTreeMap<&str, f64> = spec.policy.params().clone();
+        let params = serde_json::to_string(&params).map_err(|e| corrupt(e.to_string()))?;
+        let row = sqlx::query(
+            "INSERT INTO missions (name, resolution, origin_x, origin_y, width, height, policy, policy_params,
+                                   replan_distance_m, replan_interval_s, replan_frontier_change, state,
+                                   created_at, updated_at)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, 'active', ?12, ?12)
+             RETURNING *",
+        )
+        .bind(&spec.name)
+        .bind(spec.frame.resolution)
+        .bind(spec.frame.origin.x)
+        .bind(spec.frame.origin.y)
+        .bind(i64::from(spec.frame.width))
+        .bind(i64::from(spec.frame.height))
+        .bind(spec.policy.name())
+        .bind(params)
+        .bind(spec.replan.distance_m)
+        .bind(spec.replan.interval.as_secs_f64())
+        .bind(spec.replan.frontier_change)
+        .bind(now.millis())
+        .fetch_one(&self.pool)
+        .await?;
+        mission_from_row(&row)
+    }
+
+    async fn missions(&self) -> Result<Vec<MissionRecord>, StoreError> {
+        sqlx::query("SELECT * FROM missions ORDER BY id")
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(mission_from_row)
+            .collect()
+    }
+
+    async fn create_robot(
+        &self,
+        mission_id: MissionId,
+        spec: &RobotSpec,
+        now: Timestamp,
+    ) -> Result<RobotRecord, StoreError> {
+        let row = sqlx::query(
+            "INSERT INTO robots (mission_id, name, sensor_range_m, field_of_view_rad, speed_mps, footprint_radius_m,
+                                 state, pose_x, pose_y, pose_theta, last_seen, created_at)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, 'idle', ?7, ?8, ?9, ?10, ?10)
+             RETURNING *",
+        )
+        .bind(mission_id as i64)
+        .bind(&spec.name)
+        .bind(spec.capabilities.sensor_range_m)
+        .bind(spec.capabilities.field_of_view_rad)
+        .bind(spec.capabilities.speed_mps)
+        .bind(spec.capabilities.footprint_radius_m)
+        .bind(spec.pose.position.x)
+        .bind(spec.pose.position.y)
+        .bind(spec.pose.heading)
+        .bind(now.millis())
+        .fetch_one(&self.pool)
+        .await?;
+        robot_from_row(&row)
+    }
+
+    async fn robots(&self, mission_id: MissionId) -> Result<Vec<RobotRecord>, StoreError> {
+        sqlx::query("SELECT * FROM robots WHERE mission_id = ?1 ORDER BY id")
+            .bind(mission_id as i64)
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(robot_from_row)
+            .collect()
+    }
+
+    async fn patches(&self, mission_id: MissionId) -> Result<Vec<LoggedPatch>, StoreError> {
+        sqlx::query("SELECT robot_id, seq, x, y, width, height, cells FROM map_patches WHERE mission_id = ?1 ORDER BY id")
+            .bind(mission_id as i64)
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(|row| {
+                let rect = CellRect::new(
+                    row.try_get::<i64, _>("x")? as i32,
+                    row.try_get::<i64, _>("y")? as i32,
+                    row.try_get::<i64, _>("width")? as u32,
+                    row.try_get::<i64, _>("height")? as u32,
+                );
+                let cells: Vec<u8> = row.try_get("cells")?;
+                let patch = Patch::from_stored(rect, decode_cells(&cells)).map_err(|e| corrupt(e.to_string()))?;
+                Ok(LoggedPatch {
+                    robot_id: row.try_get::<i64, _>("robot_id")? as RobotId,
+                    seq: row.try_get::<i64, _>("seq")? as u64,
+                    patch,
+                })
+            })
+            .collect()
+    }
+
+    async fn open_tasks(&self, mission_id: MissionId) -> Result<Vec<TaskRecord>, StoreError> {
+        sqlx::query("SELECT * FROM tasks WHERE mission_id = ?1 AND state IN ('assigned', 'active') ORDER BY id")
+            .bind(mission_id as i64)
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(task_from_row)
+            .collect()
+    }
+
+    async fn tasks(&self, filter: TaskFilter) -> Result<Vec<TaskRecord>, StoreError> {
+        let rows = sqlx::query(
+            "SELECT * FROM tasks WHERE mission_id = ?1 AND (?2 IS NULL OR robot_id = ?2) ORDER BY id DESC LIMIT ?3",
+        )
+        .bind(filter.mission_id as i64)
+        .bind(filter.robot_id.map(|r| r as i64))
+        .bind(i64::from(filter.limit))
+        .fetch_all(&self.pool)
+        .await?;
+        let mut tasks = rows
+            .iter()
+            .map(task_from_row)
+            .collect::<Result<Vec<_>, _>>()?;
+        if !tasks.is_empty() {
+            let transitions = sqlx::query(
+                "SELECT * FROM task_transitions WHERE task_id IN
+                    (SELECT id FROM tasks WHERE mission_id = ?1 AND (?2 IS NULL OR robot_id = ?2)
+                     ORDER BY id DESC LIMIT ?3)
+                 ORDER BY id",
+            )
+            .bind(filter.mission_id as i64)
+            .bind(filter.robot_id.map(|r| r as i64))
+            .bind(i64::from(filter.limit))
+            .fetch_all(&self.pool)
+            .await?;
+            let mut by_task: BTreeMap<TaskId, Vec<Transition>> = BTreeMap::new();
+            for row in &transitions {
+                let task_id = row.try_get::<i64, _>("task_id")? as TaskId;
+                by_task
+                    .entry(task_id)
+                    .or_default()
+                    .push(transition_from_row(row)?);
+            }
+            for task in &mut tasks {
+                task.transitions = by_task.remove(&task.id).unwrap_or_default();
+            }
+        }
+        Ok(tasks)
+    }
+
+    async fn max_task_id(&self) -> Result<TaskId, StoreError> {
+        let max: Option<i64> = sqlx::query_scalar("SELECT MAX(id) FROM tasks")
+            .fetch_one(&self.pool)
+            .await?;
+        Ok(max.unwrap_or(0) as TaskId)
+    }
+
+    async fn replace_bids(
+        &self,
+        robot_id: RobotId,
+        bids: &[Bid],
+        now: Timestamp,
+    ) -> Result<(), StoreError> {
+        let mut tx = self.pool.begin().await?;
+        sqlx::query("DELETE FROM bids WHERE robot_id = ?1")
+            .bind(robot_id as i64)
+            .execute(&mut *tx)
+            .await?;
+        for (ordinal, bid) in bids.iter().enumerate() {
+            sqlx::query(
+                "INSERT INTO bids (robot_id, ordinal, target_x, target_y, path_cost, information_gain,
+                                   region_min_x, region_min_y, region_max_x, region_max_y, submitted_at)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
+            )
+            .bind(robot_id as i64)
+            .bind(ordinal as i64)
+            .bind(bid.target.x)
+            .bind(bid.target.y)
+            .bind(bid.path_cost)
+            .bind(bid.information_gain)
+            .bind(bid.gain_region.0.x)
+            .bind(bid.gain_region.0.y)
+            .bind(bid.gain_region.1.x)
+            .bind(bid.gain_region.1.y)
+            .bind(now.millis())
+            .execute(&mut *tx)
+            .await?;
+        }
+        tx.commit().await?;
+        Ok(())
+    }
+
+    async fn bids(&self, robot_id: RobotId) -> Result<Vec<Bid>, StoreError> {
+        sqlx::query("SELECT * FROM bids WHERE robot_id = ?1 ORDER BY ordinal")
+            .bind(robot_id as i64)
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(|row| {
+                Ok(Bid {
+                    target: Point2::new(row.try_get("target_x")?, row.try_get("target_y")?),
+                    path_cost: row.try_get("path_cost")?,
+                    information_gain: row.try_get("information_gain")?,
+                    gain_region: (
+                        Point2::new(row.try_get("region_min_x")?, row.try_get("region_min_y")?),
+                        Point2::new(row.try_get("region_max_x")?, row.try_get("region_max_y")?),
+                    ),
+                })
+            })
+            .collect()
+    }
+
+    async fn commit(&self, changes: &Changeset) -> Result<(), StoreError> {
+        if changes.is_empty() {
+            return Ok(());
+        }
+        let now = changes.at.unwrap_or_else(Timestamp::now);
+        let mut tx = self.pool.begin().await?;
+        // Tasks first: robots refer to them.
+        for task in &changes.new_tasks {
+            sqlx::query(
+                "INSERT INTO tasks (id, mission_id, robot_id, target_x, target_y, state, policy, utility, path_cost,
+                                    created_at, updated_at)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
+            )
+            .bind(task.id as i64)
+            .bind(task.mission_id as i64)
+            .bind(task.robot_id as i64)
+            .bind(task.target.x)
+            .bind(task.target.y)
+            .bind(task.state.as_str())
+            .bind(&task.policy)
+            .bind(task.utility)
+            .bind(task.path_cost)
+            .bind(task.created_at.millis())
+            .bind(task.updated_at.millis())
+            .execute(&mut *tx)
+            .await?;
+            for t in &task.transitions {
+                write_transition(&mut tx, task.id, t).await?;
+            }
+        }
+        for change in &changes.task_changes {
+            sqlx::query("UPDATE tasks SET state = ?1, updated_at = ?2 WHERE id = ?3")
+                .bind(change.state.as_str())
+                .bind(change.transition.at.millis())
+                .bind(change.task_id as i64)
+                .execute(&mut *tx)
+                .await?;
+            write_transition(&mut tx, change.task_id, &change.transition).await?;
+        }
+        for robot in &changes.robots {
+            write_robot(&mut tx, robot).await?;
+        }
+        for logged in &changes.patches {
+            let rect = logged.patch.rect();
+            sqlx::query(
+                "INSERT INTO map_patches (mission_id, robot_id, seq, x, y, width, height, cells, received_at)
+                 SELECT mission_id, ?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8 FROM robots WHERE id = ?1",
+            )
+            .bind(logged.robot_id as i64)
+            .bind(logged.seq as i64)
+            .bind(i64::from(rect.x))
+            .bind(i64::from(rect.y))
+            .bind(i64::from(rect.width))
+            .bind(i64::from(rect.height))
+            .bind(encode_cells(&logged.patch))
+            .bind(now.millis())
+            .execute(&mut *tx)
+            .await?;
+        }
+        if let Some(m) = &changes.mission {
+            sqlx::query("UPDATE missions SET state = ?1, replans = ?2, map_updates = ?3, updated_at = ?4 WHERE id = ?5")
+                .bind(m.state.as_str())
+                .bind(m.replans as i64)
+                .bind(m.map_updates as i64)
+                .bind(now.millis())
+                .bind(m.id as i64)
+                .execute(&mut *tx)
+                .await?;
+        }
+        tx.commit().await?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::{MissionCounters, TaskChange};
+
+    fn spec() -> MissionSpec {
+        MissionSpec {
+            name: "lab".into(),
+            frame: GridFrame::new(0.1, Point2::new(-1.0, -2.0), 40, 30),
+            policy: PolicyConfig::default_for("burgard").unwrap(),
+            replan: ReplanSettings::default(),
+        }
+    }
+
+    fn robot_spec(name: &str) -> RobotSpec {
+        RobotSpec {
+            name: name.into(),
+            capabilities: Capabilities {
+                sensor_range_m: 4.0,
+                field_of_view_rad: 6.0,
+                speed_mps: 0.5,
+                footprint_radius_m: 0.2,
+            },
+            pose: Pose {
+                position: Point2::new(0.5, 0.5),
+                heading: 0.1,
+            },
+        }
+    }
+
+    #[tokio::test]
+    async fn a_changeset_round_trips_through_a_real_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("store.db");
+        let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
+        let mission = store
+            .create_mission(&spec(), Timestamp(1_000))
+            .await
+            .unwrap();
+        assert_eq!(mission.spec, spec());
+        let mut robot = store
+            .create_robot(mission.id, &robot_spec("r1"), Timestamp(2_000))
+            .await
+            .unwrap();
+        assert_eq!(robot.state, RobotState::Idle);
+
+        let rect = CellRect::new(3, 4, 2, 1);
+        let patch = Patch::from_probabilities(rect, &[0.2, 0.9], &[false, true]).unwrap();
+        let task = TaskRecord {
+            id: 7,
+            mission_id: mission.id,
+            robot_id: robot.id,
+            target: Point2::new(1.0, 2.0),
+            state: TaskState::Assigned,
+            policy: "burgard".into(),
+            utility: 0.5,
+            path_cost: 1.5,
+            created_at: Timestamp(3_000),
+            updated_at: Timestamp(3_000),
+            transitions: vec![Transition {
+                from: None,
+                to: TaskState::Assigned,
+                at: Timestamp(3_000),
+                cause: "replanning".into(),
+                actor: Actor::Policy,
+            }],
+        };
+        robot.current_task = Some(7);
+        robot.last_map_seq = 5;
+        robot.assignment_version = 1;
+        store
+            .commit(&Changeset {
+                mission: Some(MissionCounters {
+                    id: mission.id,
+                    state: MissionState::Active,
+                    replans: 1,
+                    map_updates: 1,
+                }),
+                robots: vec![robot.clone()],
+                new_tasks: vec![task.clone()],
+                task_changes: vec![],
+                patches: vec![LoggedPatch {
+                    robot_id: robot.id,
+                    seq: 5,
+                    patch: patch.clone(),
+                }],
+                at: Some(Timestamp(3_000)),
+            })
+            .await
+            .unwrap();
+        store
+            .commit(&Changeset {
+                task_changes: vec![TaskChange {
+                    task_id: 7,
+                    state: TaskState::Reached,
+                    transition: Transition {
+                        from: Some(TaskState::Assigned),
+                        to: TaskState::Reached,
+                        at: Timestamp(4_000),
+                        cause: "robot arrived".into(),
+                        actor: Actor::Robot,
+                    },
+                }],
+                ..Changeset::default()
+            })
+            .await
+            .unwrap();
+        store.close().await;
+
+        // Reopen the file: everything is there.
+        let store = SqliteStore::open(&path, Durability::Normal).await.unwrap();
+        let missions = store.missions().await.unwrap();
+        assert_eq!(missions.len(), 1);
+        assert_eq!(missions[0].replans, 1);
+        assert_eq!(store.robots(mission.id).await.unwrap(), vec![robot.clone()]);
+        let patches = store.patches(mission.id).await.unwrap();
+        assert_eq!(patches.len(), 1);
+        assert_eq!(patches[0].seq, 5);
+        assert_eq!(patches[0].patch.rect(), rect);
+        assert_eq!(patches[0].patch.log_odds()[0], patch.log_odds()[0]);
+        assert!(patches[0].patch.log_odds()[1].is_nan());
+        assert!(store.open_tasks(mission.id).await.unwrap().is_empty());
+        let tasks = store
+            .tasks(TaskFilter {
+                mission_id: mission.id,
+                robot_id: Some(robot.id),
+                limit: 10,
+            })
+            .await
+            .unwrap();
+        assert_eq!(tasks.len(), 1);
+        assert_eq!(tasks[0].state, TaskState::Reached);
+        assert_eq!(tasks[0].transitions.len(), 2);
+        assert_eq!(tasks[0].transitions[1].actor, Actor::Robot);
+        assert_eq!(store.max_task_id().await.unwrap(), 7);
+    }
+
+    #[tokio::test]
+    async fn a_failed_changeset_writes_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = SqliteStore::open(&dir.path().join("s.db"), Durability::Full)
+            .await
+            .unwrap();
+        let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
+        let robot = store
+            .create_robot(mission.id, &robot_spec("r1"), Timestamp(1))
+            .await
+            .unwrap();
+        let mut moved = robot.clone();
+        moved.last_map_seq = 9;
+        // A task for a robot that does not exist violates a foreign key.
+        let bad_task = TaskRecord {
+            id: 1,
+            mission_id: mission.id,
+            robot_id: 999,
+            target: Point2::origin(),
+            state: TaskState::Assigned,
+            policy: "burgard".into(),
+            utility: 0.0,
+            path_cost: 0.0,
+            created_at: Timestamp(1),
+            updated_at: Timestamp(1),
+            transitions: vec![],
+        };
+        let result = store
+            .commit(&Changeset {
+                robots: vec![moved],
+                new_tasks: vec![bad_task],
+                ..Changeset::default()
+            })
+            .await;
+        assert!(result.is_err());
+        assert_eq!(store.robots(mission.id).await.unwrap(), vec![robot]);
+    }
+}
