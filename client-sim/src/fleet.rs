@@ -117,6 +117,9 @@ pub struct RunReport {
     pub replans: u64,
     /// Map updates the executive applied.
     pub map_updates: u64,
+    /// Map updates the robots saw acknowledged; equals `map_updates` when
+    /// none was lost or applied twice.
+    pub updates_acknowledged: u64,
     /// Reachable free cells of the world.
     pub reachable_cells: usize,
     /// Cell size, metres.
@@ -360,6 +363,7 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
         distance_per_robot: robots.iter().map(|r| r.distance_m).collect(),
         replans: summary.replans,
         map_updates: summary.map_updates,
+        updates_acknowledged: robots.iter().map(|r| r.acknowledged_updates).sum(),
         reachable_cells: world.reachable_cells,
         cell_size: frame.resolution,
         overlap: if sensed == 0 {

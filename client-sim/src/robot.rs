@@ -132,6 +132,8 @@ pub struct SimRobot {
     stream: watch::Receiver<Option<pb::Assignment>>,
     /// Steps at which the stream had not yet delivered the version a response named.
     pub stream_lags: u64,
+    /// Map updates the executive acknowledged (or recognised as already applied).
+    pub acknowledged_updates: u64,
 }
 
 fn retryable(status: &Status) -> bool {
@@ -213,6 +215,7 @@ impl SimRobot {
             retry_budget,
             stream: rx,
             stream_lags: 0,
+            acknowledged_updates: 0,
         })
     }
 
@@ -351,12 +354,16 @@ impl SimRobot {
         })
         .await;
         match result {
-            Ok(response) => response.assignment.ok_or_else(|| RobotError::Rpc {
-                what: "UpdateMap",
-                status: Status::internal("the response holds no assignment"),
-            }),
+            Ok(response) => {
+                self.acknowledged_updates += 1;
+                response.assignment.ok_or_else(|| RobotError::Rpc {
+                    what: "UpdateMap",
+                    status: Status::internal("the response holds no assignment"),
+                })
+            }
             // Applied before the executive went down: fetch the assignment.
             Err(RobotError::Rpc { status, .. }) if status.code() == Code::AlreadyExists => {
+                self.acknowledged_updates += 1;
                 self.get_assignment().await
             }
             Err(e) => Err(e),

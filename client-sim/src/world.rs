@@ -537,21 +537,21 @@ mod tests {
 
     #[test]
     fn an_enclosed_building_beats_the_larger_outside() {
-        // A big free outside touching the border and a closed room inside.
-        let mut rows = vec!["..................".to_string(); 3];
-        rows.push("....#######.......".to_string());
-        rows.push("....#.....#.......".to_string());
-        rows.push("....#.....#.......".to_string());
-        rows.push("....#######.......".to_string());
-        rows.extend(vec!["..................".to_string(); 3]);
-        let free: Vec<bool> = rows
-            .iter()
-            .flat_map(|r| r.chars().map(|c| c == '.'))
+        // A 20×12 image: a closed building (walls on x 2..=17, y 2..=9) in a
+        // larger free outside that touches the border.
+        let (w, h) = (20usize, 12usize);
+        let free: Vec<bool> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let on_wall = ((x == 2 || x == 17) && (2..=9).contains(&y))
+                    || ((y == 2 || y == 9) && (2..=17).contains(&x));
+                !on_wall
+            })
             .collect();
         let world = World::from_pixels(
             "house",
-            18,
-            10,
+            w,
+            h,
             &free,
             1.0,
             Point2::origin(),
@@ -561,7 +561,8 @@ mod tests {
         )
         .unwrap();
         assert_eq!(
-            world.reachable_cells, 10,
+            world.reachable_cells,
+            14 * 6,
             "the team starts inside the house"
         );
     }

@@ -1,0 +1,74 @@
+//! `fleet-sim run --json` as a user runs it: the last line is one JSON
+//! object with the figures the README promises.
+
+use std::path::Path;
+use std::process::Command;
+
+#[test]
+fn run_json_prints_the_promised_figures() {
+    let map = Path::new(env!("CARGO_MANIFEST_DIR")).join("../maps/nav2_depot.yaml");
+    let output = Command::new(env!("CARGO_BIN_EXE_fleet-sim"))
+        .args([
+            "run",
+            "--robots",
+            "2",
+            "--policy",
+            "nearest",
+            "--seed",
+            "4",
+            "--cell-size",
+            "0.25",
+            "--json",
+            "--map",
+        ])
+        .arg(&map)
+        .output()
+        .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let stdout = String::from_utf8(output.stdout).unwrap();
+    let last = stdout.lines().last().unwrap();
+    let report: serde_json::Value = serde_json::from_str(last).unwrap();
+    for key in [
+        "mission_id",
+        "policy",
+        "robots",
+        "completed",
+        "steps",
+        "coverage",
+        "t50",
+        "t90",
+        "t95",
+        "t100",
+        "distance_per_robot",
+        "replans",
+    ] {
+        assert!(report.get(key).is_some(), "{key} is missing from {last}");
+    }
+    assert_eq!(report["policy"], "nearest");
+    assert_eq!(report["robots"], 2);
+    assert_eq!(report["completed"], true);
+    assert_eq!(report["coverage"], 1.0);
+    assert_eq!(report["distance_per_robot"].as_array().unwrap().len(), 2);
+}
+
+#[test]
+fn bad_arguments_fail_with_a_message() {
+    let output = Command::new(env!("CARGO_BIN_EXE_fleet-sim"))
+        .args(["run", "--map", "/nonexistent.yaml", "--robots", "1"])
+        .output()
+        .unwrap();
+    assert!(!output.status.success());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(stderr.contains("/nonexistent.yaml"), "{stderr}");
+
+    let output = Command::new(env!("CARGO_BIN_EXE_fleet-sim"))
+        .args(["run", "--map", "x.yaml", "--param", "beta"])
+        .output()
+        .unwrap();
+    assert!(!output.status.success());
+    assert!(String::from_utf8_lossy(&output.stderr).contains("key=value"));
+}

@@ -1,0 +1,220 @@
+//! Shared helpers: a real executive on port 0 with a real SQLite file, gRPC
+//! clients, the bundled maps and the binaries.
+
+#![allow(dead_code)]
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use tokio_util::sync::CancellationToken;
+use tonic::transport::Channel;
+
+use exploration_proto::v1 as pb;
+use exploration_proto::v1::fleet_client::FleetClient;
+use exploration_proto::v1::missions_client::MissionsClient;
+
+/// An executive served in this process, as `coordinator` serves it.
+pub struct TestExecutive {
+    pub address: SocketAddr,
+    pub url: String,
+    pub db: PathBuf,
+    stop: CancellationToken,
+    task: tokio::task::JoinHandle<Result<(), coordinator::ServeError>>,
+}
+
+impl TestExecutive {
+    /// Serves on 127.0.0.1:0 with the database at `db`.
+    pub async fn start(db: &Path) -> Self {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let address = listener.local_addr().unwrap();
+        let stop = CancellationToken::new();
+        let config = coordinator::Config::new(db);
+        let task = tokio::spawn(coordinator::run(
+            listener,
+            stop.clone().cancelled_owned(),
+            config,
+        ));
+        Self {
+            address,
+            url: format!("http://{address}"),
+            db: db.to_owned(),
+            stop,
+            task,
+        }
+    }
+
+    /// Shuts down gracefully and waits until it has stopped.
+    pub async fn stop(self) {
+        self.stop.cancel();
+        self.task.await.unwrap().unwrap();
+    }
+
+    pub fn channel(&self) -> Channel {
+        tonic::transport::Endpoint::from_shared(self.url.clone())
+            .unwrap()
+            .connect_lazy()
+    }
+
+    pub fn missions(&self) -> MissionsClient<Channel> {
+        MissionsClient::new(self.channel())
+    }
+
+    pub fn fleet(&self) -> FleetClient<Channel> {
+        FleetClient::new(self.channel())
+    }
+}
+
+/// A bundled map shipped in `maps/`.
+pub fn bundled_map(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../maps")
+        .join(format!("{name}.yaml"))
+}
+
+/// The shared map collection, when the setting `EXPLORATION_SHARED_MAPS`
+/// points at it; `None` (and a line saying what is skipped) otherwise.
+pub fn shared_maps(what: &str) -> Option<PathBuf> {
+    match std::env::var_os("EXPLORATION_SHARED_MAPS") {
+        Some(dir) if Path::new(&dir).join("README.md").exists() => Some(PathBuf::from(dir)),
+        _ => {
+            eprintln!(
+                "SKIPPED {what}: set EXPLORATION_SHARED_MAPS to the folder of the shared maps \
+                 (../shared/maps in the development workspace; .ci/run sets it) to run it"
+            );
+            None
+        }
+    }
+}
+
+/// A binary of the workspace, built by the same cargo invocation as this test.
+pub fn binary(name: &str) -> PathBuf {
+    let mut dir = std::env::current_exe().unwrap();
+    dir.pop();
+    if dir.ends_with("deps") {
+        dir.pop();
+    }
+    let path = dir.join(name);
+    assert!(
+        path.exists(),
+        "{} is missing: build the workspace's binaries first (cargo build --workspace --bins)",
+        path.display()
+    );
+    path
+}
+
+/// A mission frame of `width` × `height` cells of 0.1 m at the origin.
+pub fn frame(width: u32, height: u32) -> pb::MapFrame {
+    pb::MapFrame {
+        resolution: 0.1,
+        origin: Some(pb::Point { x: 0.0, y: 0.0 }),
+        width,
+        height,
+    }
+}
+
+pub async fn create_mission(
+    missions: &mut MissionsClient<Channel>,
+    width: u32,
+    height: u32,
+    policy: &str,
+) -> pb::Mission {
+    missions
+        .create_mission(pb::CreateMissionRequest {
+            name: "test".into(),
+            frame: Some(frame(width, height)),
+            policy: Some(pb::PolicySpec {
+                name: policy.into(),
+                params: Default::default(),
+            }),
+            replan: None,
+        })
+        .await
+        .unwrap()
+        .into_inner()
+}
+
+pub async fn register(
+    fleet: &mut FleetClient<Channel>,
+    mission_id: u64,
+    name: &str,
+    x: f64,
+    y: f64,
+) -> pb::Robot {
+    fleet
+        .register_robot(pb::RegisterRobotRequest {
+            mission_id,
+            name: name.into(),
+            capabilities: Some(pb::RobotCapabilities {
+                sensor_range_m: 2.0,
+                field_of_view_rad: std::f64::consts::TAU,
+                speed_mps: 0.5,
+                footprint_radius_m: 0.0,
+            }),
+            pose: Some(pb::Pose { x, y, theta: 0.0 }),
+        })
+        .await
+        .unwrap()
+        .into_inner()
+        .robot
+        .unwrap()
+}
+
+/// A probability patch with every cell at `p`.
+pub fn patch(x: u32, y: u32, width: u32, height: u32, p: f32) -> pb::MapPatch {
+    pb::MapPatch {
+        x,
+        y,
+        width,
+        height,
+        encoding: pb::CellEncoding::Probability as i32,
+        values: vec![p; (width * height) as usize],
+        unknown: vec![],
+    }
+}
+
+pub fn update(
+    robot_id: u64,
+    seq: u64,
+    x: f64,
+    y: f64,
+    patches: Vec<pb::MapPatch>,
+) -> pb::UpdateMapRequest {
+    pb::UpdateMapRequest {
+        robot_id,
+        seq,
+        pose: Some(pb::Pose { x, y, theta: 0.0 }),
+        patches,
+    }
+}
+
+/// Waits until the executive at `url` answers health checks as SERVING.
+pub async fn wait_until_serving(url: &str, within: Duration) {
+    let deadline = tokio::time::Instant::now() + within;
+    loop {
+        let channel = tonic::transport::Endpoint::from_shared(url.to_owned())
+            .unwrap()
+            .connect()
+            .await;
+        if let Ok(channel) = channel {
+            let mut health = tonic_health::pb::health_client::HealthClient::new(channel);
+            let answer = health
+                .check(tonic_health::pb::HealthCheckRequest {
+                    service: String::new(),
+                })
+                .await;
+            if answer.is_ok_and(|r| {
+                r.into_inner().status
+                    == tonic_health::pb::health_check_response::ServingStatus::Serving as i32
+            }) {
+                return;
+            }
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the executive at {url} did not come up"
+        );
+        tokio::task::yield_now().await;
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
