@@ -18,7 +18,7 @@ use tonic::Status;
 use exploration_proto::v1 as pb;
 use exploration_proto::v1::missions_client::MissionsClient;
 
-use crate::robot::{RobotError, RobotModel, SimRobot, TeamMap};
+use crate::robot::{Bidding, RobotError, RobotModel, SimRobot, TeamMap};
 use crate::world::{StartChoice, World, WorldError};
 
 /// Everything a run is made of.
@@ -51,6 +51,8 @@ pub struct RunConfig {
     pub stall_steps: u64,
     /// How long a robot keeps retrying an unreachable executive.
     pub retry_budget: Duration,
+    /// Robots of a bidding policy (`simmons`) bid every this many steps.
+    pub bid_every: u64,
     /// Print progress to stderr.
     pub progress: bool,
 }
@@ -77,6 +79,7 @@ impl RunConfig {
             max_steps: 50_000,
             stall_steps: 200,
             retry_budget: Duration::from_secs(120),
+            bid_every: 5,
             progress: false,
         }
     }
@@ -174,12 +177,9 @@ impl EmbeddedExecutive {
                 (dir.path().join("coordinator.db"), Some(dir))
             }
         };
-        let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
-            .await
-            .map_err(|e| SimError::Executive(e.to_string()))?;
-        let address = listener
-            .local_addr()
-            .map_err(|e| SimError::Executive(e.to_string()))?;
+        let listener =
+            tokio::net::TcpListener::bind("127.0.0.1:0").await.map_err(|e| SimError::Executive(e.to_string()))?;
+        let address = listener.local_addr().map_err(|e| SimError::Executive(e.to_string()))?;
         let stop = CancellationToken::new();
         let shutdown = stop.clone().cancelled_owned();
         let mut config = coordinator::Config::new(path);
@@ -187,12 +187,7 @@ impl EmbeddedExecutive {
         // takes the fleet with it, so power-cut durability buys nothing here.
         config.durability = coordinator::Durability::Normal;
         let task = tokio::spawn(coordinator::run(listener, shutdown, config));
-        Ok(Self {
-            url: format!("http://{address}"),
-            stop,
-            task,
-            _dir: dir,
-        })
+        Ok(Self { url: format!("http://{address}"), stop, task, _dir: dir })
     }
 
     async fn stop(self) -> Result<(), SimError> {
@@ -237,10 +232,7 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
             name: format!("fleet-sim {} seed {}", world.name, config.seed),
             frame: Some(pb::MapFrame {
                 resolution: frame.resolution,
-                origin: Some(pb::Point {
-                    x: frame.origin.x,
-                    y: frame.origin.y,
-                }),
+                origin: Some(pb::Point { x: frame.origin.x, y: frame.origin.y }),
                 width: frame.width,
                 height: frame.height,
             }),
@@ -251,10 +243,7 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
             replan: None,
         })
         .await
-        .map_err(|status| SimError::Rpc {
-            what: "CreateMission",
-            status,
-        })?
+        .map_err(|status| SimError::Rpc { what: "CreateMission", status })?
         .into_inner();
     if config.progress {
         eprintln!(
@@ -271,6 +260,10 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
     }
     let stop = CancellationToken::new();
     let _stop_streams = stop.clone().drop_guard();
+    let bidding = (config.policy == "simmons").then(|| Bidding {
+        every: config.bid_every.max(1),
+        spacing_m: config.params.get("spacing_m").copied().unwrap_or(0.3),
+    });
     let mut robots = Vec::with_capacity(config.robots);
     for i in 0..config.robots {
         robots.push(
@@ -281,6 +274,7 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
                 world.start,
                 world,
                 config.model,
+                bidding,
                 config.retry_budget,
                 stop.clone(),
             )
@@ -323,10 +317,7 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
         if team.known_reachable > last_progress.0 {
             last_progress = (team.known_reachable, step);
         } else if step - last_progress.1 >= 10 * config.stall_steps {
-            break format!(
-                "the team learnt nothing for {} steps",
-                step - last_progress.1
-            );
+            break format!("the team learnt nothing for {} steps", step - last_progress.1);
         }
         step += 1;
         if step >= config.max_steps {
@@ -334,14 +325,9 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
         }
     };
     let summary = missions
-        .get_mission(pb::GetMissionRequest {
-            mission_id: mission.id,
-        })
+        .get_mission(pb::GetMissionRequest { mission_id: mission.id })
         .await
-        .map_err(|status| SimError::Rpc {
-            what: "GetMission",
-            status,
-        })?
+        .map_err(|status| SimError::Rpc { what: "GetMission", status })?
         .into_inner();
     let sensed = team.sensed_by.iter().filter(|&&n| n > 0).count();
     let overlapping = team.sensed_by.iter().filter(|&&n| n > 1).count();
@@ -366,11 +352,7 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
         updates_acknowledged: robots.iter().map(|r| r.acknowledged_updates).sum(),
         reachable_cells: world.reachable_cells,
         cell_size: frame.resolution,
-        overlap: if sensed == 0 {
-            0.0
-        } else {
-            overlapping as f64 / sensed as f64
-        },
+        overlap: if sensed == 0 { 0.0 } else { overlapping as f64 / sensed as f64 },
         stream_lags: robots.iter().map(|r| r.stream_lags).sum(),
         wall_time_s: started.elapsed().as_secs_f64(),
         trajectories: robots.iter().map(|r| r.trajectory.clone()).collect(),

@@ -80,13 +80,8 @@ struct RunArgs {
 }
 
 fn parse_param(s: &str) -> Result<(String, f64), String> {
-    let (key, value) = s
-        .split_once('=')
-        .ok_or_else(|| format!("{s:?} is not key=value"))?;
-    let value: f64 = value
-        .trim()
-        .parse()
-        .map_err(|e| format!("{s:?}: the value is not a number: {e}"))?;
+    let (key, value) = s.split_once('=').ok_or_else(|| format!("{s:?} is not key=value"))?;
+    let value: f64 = value.trim().parse().map_err(|e| format!("{s:?}: the value is not a number: {e}"))?;
     Ok((key.trim().to_owned(), value))
 }
 
@@ -95,9 +90,7 @@ fn parse_start(s: &str) -> anyhow::Result<StartChoice> {
         "auto" => StartChoice::Auto,
         "random" => StartChoice::Random,
         xy => {
-            let (x, y) = xy
-                .split_once(',')
-                .with_context(|| format!("--start {xy:?}: expected auto, random or x,y"))?;
+            let (x, y) = xy.split_once(',').with_context(|| format!("--start {xy:?}: expected auto, random or x,y"))?;
             StartChoice::At(Point2::new(x.trim().parse()?, y.trim().parse()?))
         }
     })
@@ -106,10 +99,7 @@ fn parse_start(s: &str) -> anyhow::Result<StartChoice> {
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("warn"));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .init();
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
     match Cli::parse().command {
         Command::Run(args) => run(args).await,
     }
@@ -132,9 +122,7 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
     config.max_steps = args.max_steps;
     config.retry_budget = Duration::from_secs_f64(args.retry_for);
     config.progress = !args.quiet && !args.json;
-    let report = client_sim::run(&config)
-        .await
-        .with_context(|| format!("the run on {} failed", args.map.display()))?;
+    let report = client_sim::run(&config).await.with_context(|| format!("the run on {} failed", args.map.display()))?;
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
@@ -146,44 +134,17 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
 fn print_summary(r: &RunReport) {
     let steps = |t: Option<u64>| t.map_or("-".to_owned(), |t| t.to_string());
     println!();
-    println!(
-        "mission {}  map {}  policy {}  robots {}  seed {}",
-        r.mission_id, r.map, r.policy, r.robots, r.seed
-    );
+    println!("mission {}  map {}  policy {}  robots {}  seed {}", r.mission_id, r.map, r.policy, r.robots, r.seed);
     println!(
         "{}: {} after {} steps ({:.1} s wall time)",
-        if r.completed {
-            "completed"
-        } else {
-            "NOT completed"
-        },
+        if r.completed { "completed" } else { "NOT completed" },
         r.ended,
         r.steps,
         r.wall_time_s
     );
-    println!(
-        "coverage {:.2} % of {} reachable cells ({} m cells)",
-        100.0 * r.coverage,
-        r.reachable_cells,
-        r.cell_size
-    );
-    println!(
-        "steps to 50/90/95/100 %: {} / {} / {} / {}",
-        steps(r.t50),
-        steps(r.t90),
-        steps(r.t95),
-        steps(r.t100)
-    );
-    let distances: Vec<String> = r
-        .distance_per_robot
-        .iter()
-        .map(|d| format!("{d:.1}"))
-        .collect();
+    println!("coverage {:.2} % of {} reachable cells ({} m cells)", 100.0 * r.coverage, r.reachable_cells, r.cell_size);
+    println!("steps to 50/90/95/100 %: {} / {} / {} / {}", steps(r.t50), steps(r.t90), steps(r.t95), steps(r.t100));
+    let distances: Vec<String> = r.distance_per_robot.iter().map(|d| format!("{d:.1}")).collect();
     println!("distance per robot (m): {}", distances.join(", "));
-    println!(
-        "replans {}  map updates {}  overlap {:.1} %",
-        r.replans,
-        r.map_updates,
-        100.0 * r.overlap
-    );
+    println!("replans {}  map updates {}  overlap {:.1} %", r.replans, r.map_updates, 100.0 * r.overlap);
 }

@@ -15,8 +15,10 @@ use tokio_util::sync::CancellationToken;
 use tonic::transport::Channel;
 use tonic::{Code, Status};
 
-use exploration::cost::shortest_path;
+use exploration::cost::{TraversalMap, cost_map, shortest_path};
+use exploration::frontier::FrontierMap;
 use exploration::grid::{Cell, CellClass, CellRect, GridFrame, OccupancyGrid};
+use exploration::policy::{Capabilities, compute_bids};
 use exploration::visibility::RangeSensor;
 use exploration_proto::v1 as pb;
 use exploration_proto::v1::fleet_client::FleetClient;
@@ -80,11 +82,7 @@ pub struct TeamMap {
 impl TeamMap {
     /// Nothing known yet.
     pub fn new(frame: GridFrame) -> Self {
-        Self {
-            grid: OccupancyGrid::unknown(frame),
-            known_reachable: 0,
-            sensed_by: vec![0; frame.len()],
-        }
+        Self { grid: OccupancyGrid::unknown(frame), known_reachable: 0, sensed_by: vec![0; frame.len()] }
     }
 }
 
@@ -134,13 +132,22 @@ pub struct SimRobot {
     pub stream_lags: u64,
     /// Map updates the executive acknowledged (or recognised as already applied).
     pub acknowledged_updates: u64,
+    capabilities: Capabilities,
+    bidding: Option<Bidding>,
+    steps_since_bid: u64,
+}
+
+/// How a robot bids (Simmons et al. 2000, §4.1), when its mission's policy wants bids.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bidding {
+    /// Bid every this many steps.
+    pub every: u64,
+    /// Bid frontier cells at least this far apart, metres.
+    pub spacing_m: f64,
 }
 
 fn retryable(status: &Status) -> bool {
-    matches!(
-        status.code(),
-        Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded
-    )
+    matches!(status.code(), Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded)
 }
 
 impl SimRobot {
@@ -153,14 +160,12 @@ impl SimRobot {
         start: Cell,
         world: &World,
         model: RobotModel,
+        bidding: Option<Bidding>,
         retry_budget: Duration,
         stop: CancellationToken,
     ) -> Result<Self, RobotError> {
         let channel = tonic::transport::Endpoint::from_shared(endpoint.to_owned())
-            .map_err(|e| RobotError::Rpc {
-                what: "connect",
-                status: Status::invalid_argument(e.to_string()),
-            })?
+            .map_err(|e| RobotError::Rpc { what: "connect", status: Status::invalid_argument(e.to_string()) })?
             .connect_timeout(Duration::from_secs(5))
             .tcp_nodelay(true)
             .connect_lazy();
@@ -176,11 +181,7 @@ impl SimRobot {
                 speed_mps: model.speed_mps,
                 footprint_radius_m: model.footprint_radius_m,
             }),
-            pose: Some(pb::Pose {
-                x: point.x,
-                y: point.y,
-                theta: 0.0,
-            }),
+            pose: Some(pb::Pose { x: point.x, y: point.y, theta: 0.0 }),
         };
         let response = retry("RegisterRobot", retry_budget, || {
             let mut client = client.clone();
@@ -216,15 +217,19 @@ impl SimRobot {
             stream: rx,
             stream_lags: 0,
             acknowledged_updates: 0,
+            capabilities: Capabilities {
+                sensor_range_m: model.sensor_range_m,
+                field_of_view_rad: model.field_of_view_rad,
+                speed_mps: model.speed_mps,
+                footprint_radius_m: model.footprint_radius_m,
+            },
+            bidding,
+            steps_since_bid: 0,
         })
     }
 
     /// One time step: move, sense, report, adopt the assignment.
-    pub async fn step(
-        &mut self,
-        world: &World,
-        team: &mut TeamMap,
-    ) -> Result<StepOutcome, RobotError> {
+    pub async fn step(&mut self, world: &World, team: &mut TeamMap) -> Result<StepOutcome, RobotError> {
         let mut outcome = StepOutcome::default();
         // Move one cell along the path.
         if let Some(next) = self.path.pop_front() {
@@ -241,18 +246,73 @@ impl SimRobot {
         }
         // Arrived: say so; the answer carries the next assignment.
         if let Some(task) = self.task.filter(|t| t.target == self.cell) {
-            let assignment = self
-                .heartbeat(world, pb::RobotState::Arrived, task.id, "")
-                .await?;
+            let assignment = self.heartbeat(world, pb::RobotState::Arrived, task.id, "").await?;
             self.adopt(assignment, world, team).await?;
         }
         let patch = self.sense(world, team);
         let assignment = self.send_update(world, patch).await?;
         let completed = assignment.mission_state == pb::MissionState::Completed as i32;
         self.adopt(assignment, world, team).await?;
+        // Bidding robots (Simmons et al. 2000) bid on a fresh map now and
+        // then, and whenever they have nothing to do.
+        if let Some(bidding) = self.bidding {
+            self.steps_since_bid += 1;
+            if self.steps_since_bid >= bidding.every || self.task.is_none() {
+                self.steps_since_bid = 0;
+                let assignment = self.submit_bids(world, team, bidding.spacing_m).await?;
+                self.adopt(assignment, world, team).await?;
+            }
+        }
         outcome.has_task = self.task.is_some();
         outcome.mission_completed = completed;
         Ok(outcome)
+    }
+
+    /// Computes bids on the team's map (§4.1) and sends them.
+    async fn submit_bids(
+        &mut self,
+        world: &World,
+        team: &TeamMap,
+        spacing_m: f64,
+    ) -> Result<pb::Assignment, RobotError> {
+        let frontier = FrontierMap::detect(&team.grid).cells();
+        let traversal = TraversalMap::free_space(&team.grid, self.capabilities.footprint_radius_m);
+        let costs = cost_map(&traversal, &[self.cell]);
+        let bids = compute_bids(&team.grid, &frontier, &costs, &self.capabilities, spacing_m);
+        let frame = world.frame;
+        let corner = |x: i32, y: i32| pb::Point {
+            x: frame.origin.x + f64::from(x) * frame.resolution,
+            y: frame.origin.y + f64::from(y) * frame.resolution,
+        };
+        let request = pb::SubmitBidsRequest {
+            robot_id: self.id,
+            bids: bids
+                .iter()
+                .map(|b| {
+                    let target = frame.world_from_cell(b.target);
+                    let (low, high) = (
+                        corner(b.gain_region.x, b.gain_region.y),
+                        corner(b.gain_region.x_end(), b.gain_region.y_end()),
+                    );
+                    pb::Bid {
+                        target: Some(pb::Point { x: target.x, y: target.y }),
+                        path_cost: b.path_cost_m,
+                        information_gain: b.information_gain,
+                        gain_region: Some(pb::Rect { min_x: low.x, min_y: low.y, max_x: high.x, max_y: high.y }),
+                    }
+                })
+                .collect(),
+        };
+        let response = retry("SubmitBids", self.retry_budget, || {
+            let mut client = self.client.clone();
+            let request = request.clone();
+            async move { client.submit_bids(request).await }
+        })
+        .await?;
+        response.assignment.ok_or_else(|| RobotError::Rpc {
+            what: "SubmitBids",
+            status: Status::internal("the response holds no assignment"),
+        })
     }
 
     /// Senses from the current cell; returns the patch of cells the robot's
@@ -324,21 +384,13 @@ impl SimRobot {
 
     fn pose(&self, world: &World) -> pb::Pose {
         let p = world.frame.world_from_cell(self.cell);
-        pb::Pose {
-            x: p.x,
-            y: p.y,
-            theta: self.heading,
-        }
+        pb::Pose { x: p.x, y: p.y, theta: self.heading }
     }
 
     /// Sends a map update under the next sequence number; an update whose
     /// acknowledgement was lost is resent under the same number and
     /// recognised as applied.
-    async fn send_update(
-        &mut self,
-        world: &World,
-        patch: Option<pb::MapPatch>,
-    ) -> Result<pb::Assignment, RobotError> {
+    async fn send_update(&mut self, world: &World, patch: Option<pb::MapPatch>) -> Result<pb::Assignment, RobotError> {
         self.seq += 1;
         let request = pb::UpdateMapRequest {
             robot_id: self.id,
@@ -407,12 +459,7 @@ impl SimRobot {
 
     /// Takes up an assignment: plans a path to a new target, acknowledges it,
     /// or reports failure when the target cannot be reached.
-    async fn adopt(
-        &mut self,
-        mut assignment: pb::Assignment,
-        world: &World,
-        team: &TeamMap,
-    ) -> Result<(), RobotError> {
+    async fn adopt(&mut self, mut assignment: pb::Assignment, world: &World, team: &TeamMap) -> Result<(), RobotError> {
         // Up to a few rounds: a failure report brings a new assignment.
         for _ in 0..4 {
             self.check_stream(assignment.version).await;
@@ -420,15 +467,8 @@ impl SimRobot {
                 .target
                 .as_ref()
                 .filter(|_| assignment.task_id != 0)
-                .and_then(|p| {
-                    world
-                        .frame
-                        .cell_from_world(&exploration::math::Point2::new(p.x, p.y))
-                });
-            let task = target.map(|target| Task {
-                id: assignment.task_id,
-                target,
-            });
+                .and_then(|p| world.frame.cell_from_world(&exploration::math::Point2::new(p.x, p.y)));
+            let task = target.map(|target| Task { id: assignment.task_id, target });
             if task == self.task {
                 return Ok(());
             }
@@ -437,17 +477,13 @@ impl SimRobot {
             let Some(task) = task else {
                 return Ok(());
             };
-            let path = shortest_path(&world.frame, self.cell, task.target, |c| {
-                team.grid.class(c) == CellClass::Free
-            });
+            let path = shortest_path(&world.frame, self.cell, task.target, |c| team.grid.class(c) == CellClass::Free);
             match path {
                 Some(path) => {
                     self.path = path.into_iter().skip(1).collect();
                     if self.acknowledged_task != Some(task.id) {
                         self.acknowledged_task = Some(task.id);
-                        let next = self
-                            .heartbeat(world, pb::RobotState::Moving, task.id, "")
-                            .await?;
+                        let next = self.heartbeat(world, pb::RobotState::Moving, task.id, "").await?;
                         if next.version > assignment.version {
                             assignment = next;
                             continue;
@@ -456,14 +492,8 @@ impl SimRobot {
                     return Ok(());
                 }
                 None => {
-                    assignment = self
-                        .heartbeat(
-                            world,
-                            pb::RobotState::Failed,
-                            task.id,
-                            "no known path to the target",
-                        )
-                        .await?;
+                    assignment =
+                        self.heartbeat(world, pb::RobotState::Failed, task.id, "no known path to the target").await?;
                 }
             }
         }
@@ -474,8 +504,7 @@ impl SimRobot {
     async fn check_stream(&mut self, version: u64) {
         let caught_up = tokio::time::timeout(
             Duration::from_secs(2),
-            self.stream
-                .wait_for(|a| a.as_ref().is_some_and(|a| a.version >= version)),
+            self.stream.wait_for(|a| a.as_ref().is_some_and(|a| a.version >= version)),
         )
         .await;
         if !matches!(caught_up, Ok(Ok(_))) {
@@ -530,11 +559,7 @@ async fn watch_assignments(
 
 /// Calls `call` until it succeeds, fails for good, or the executive stays
 /// unreachable for `budget`.
-async fn retry<T, F, Fut>(
-    what: &'static str,
-    budget: Duration,
-    mut call: F,
-) -> Result<T, RobotError>
+async fn retry<T, F, Fut>(what: &'static str, budget: Duration, mut call: F) -> Result<T, RobotError>
 where
     F: FnMut() -> Fut,
     Fut: std::future::Future<Output = Result<tonic::Response<T>, Status>>,
@@ -546,11 +571,7 @@ where
             Ok(response) => return Ok(response.into_inner()),
             Err(status) if retryable(&status) => {
                 if started.elapsed() >= budget {
-                    return Err(RobotError::Unreachable {
-                        what,
-                        budget,
-                        status,
-                    });
+                    return Err(RobotError::Unreachable { what, budget, status });
                 }
                 tracing::debug!(what, %status, "executive unreachable; retrying");
                 tokio::time::sleep(backoff).await;

@@ -67,28 +67,17 @@ pub struct MapDescription {
 impl MapDescription {
     /// Reads a map_server YAML file.
     pub fn load(path: &Path) -> Result<Self, WorldError> {
-        let text = std::fs::read_to_string(path).map_err(|source| WorldError::Io {
-            path: path.to_owned(),
-            source,
-        })?;
-        let yaml_error = |message: String| WorldError::Yaml {
-            path: path.to_owned(),
-            message,
-        };
-        let docs =
-            yaml_rust2::YamlLoader::load_from_str(&text).map_err(|e| yaml_error(e.to_string()))?;
-        let doc = docs
-            .first()
-            .ok_or_else(|| yaml_error("empty document".into()))?;
+        let text = std::fs::read_to_string(path).map_err(|source| WorldError::Io { path: path.to_owned(), source })?;
+        let yaml_error = |message: String| WorldError::Yaml { path: path.to_owned(), message };
+        let docs = yaml_rust2::YamlLoader::load_from_str(&text).map_err(|e| yaml_error(e.to_string()))?;
+        let doc = docs.first().ok_or_else(|| yaml_error("empty document".into()))?;
         let number = |key: &str| -> Result<f64, WorldError> {
             let v = &doc[key];
             v.as_f64()
                 .or_else(|| v.as_i64().map(|i| i as f64))
                 .ok_or_else(|| yaml_error(format!("`{key}` is missing or not a number")))
         };
-        let image = doc["image"]
-            .as_str()
-            .ok_or_else(|| yaml_error("`image` is missing".into()))?;
+        let image = doc["image"].as_str().ok_or_else(|| yaml_error("`image` is missing".into()))?;
         let origin = doc["origin"]
             .as_vec()
             .filter(|v| v.len() >= 2)
@@ -151,35 +140,21 @@ pub enum StartChoice {
 
 impl World {
     /// Loads a map_server map and coarsens it to `cell_size` metres.
-    pub fn load(
-        yaml: &Path,
-        cell_size: Option<f64>,
-        start: StartChoice,
-        seed: u64,
-    ) -> Result<Self, WorldError> {
+    pub fn load(yaml: &Path, cell_size: Option<f64>, start: StartChoice, seed: u64) -> Result<Self, WorldError> {
         let description = MapDescription::load(yaml)?;
-        let image = image::open(&description.image).map_err(|source| WorldError::Image {
-            path: description.image.clone(),
-            source,
-        })?;
+        let image = image::open(&description.image)
+            .map_err(|source| WorldError::Image { path: description.image.clone(), source })?;
         let luma = image.to_luma8();
         let (w, h) = luma.dimensions();
         let free_pixels: Vec<bool> = luma
             .pixels()
             .map(|p| {
                 let v = f64::from(p.0[0]);
-                let occupancy = if description.negate {
-                    v / 255.0
-                } else {
-                    (255.0 - v) / 255.0
-                };
+                let occupancy = if description.negate { v / 255.0 } else { (255.0 - v) / 255.0 };
                 occupancy < description.free_thresh
             })
             .collect();
-        let name = yaml.file_stem().map_or_else(
-            || yaml.display().to_string(),
-            |s| s.to_string_lossy().into_owned(),
-        );
+        let name = yaml.file_stem().map_or_else(|| yaml.display().to_string(), |s| s.to_string_lossy().into_owned());
         Self::from_pixels(
             &name,
             w as usize,
@@ -228,8 +203,8 @@ impl World {
                         (px0..px1).all(|px| free_pixels[image_row * width + px])
                     });
                 // Cells reaching past the image are walls: the border is a wall.
-                let past_edge = f64::from(cx + 1) * scale > width as f64 + 1e-9
-                    || f64::from(cy + 1) * scale > height as f64 + 1e-9;
+                let past_edge =
+                    f64::from(cx + 1) * scale > width as f64 + 1e-9 || f64::from(cy + 1) * scale > height as f64 + 1e-9;
                 blocked[frame.index(Cell::new(cx as i32, cy as i32))] = !all_free || past_edge;
             }
         }
@@ -245,40 +220,27 @@ impl World {
         seed: u64,
     ) -> Result<Self, WorldError> {
         let components = Components::label(&frame, &blocked);
-        let main = components
-            .main()
-            .ok_or_else(|| WorldError::Empty(format!("{name}: no free cell")))?;
+        let main = components.main().ok_or_else(|| WorldError::Empty(format!("{name}: no free cell")))?;
         let start = match start {
             StartChoice::At(point) => {
-                let cell = frame.cell_from_world(&point).ok_or_else(|| {
-                    WorldError::Empty(format!("{name}: start {point:?} is off the map"))
-                })?;
+                let cell = frame
+                    .cell_from_world(&point)
+                    .ok_or_else(|| WorldError::Empty(format!("{name}: start {point:?} is off the map")))?;
                 if blocked[frame.index(cell)] {
-                    return Err(WorldError::Empty(format!(
-                        "{name}: start {point:?} is inside a wall"
-                    )));
+                    return Err(WorldError::Empty(format!("{name}: start {point:?} is inside a wall")));
                 }
                 cell
             }
             StartChoice::Auto => components.roomiest_cell(&frame, &blocked, main),
             StartChoice::Random => {
-                let cells: Vec<usize> = (0..frame.len())
-                    .filter(|&i| components.label[i] == main)
-                    .collect();
+                let cells: Vec<usize> = (0..frame.len()).filter(|&i| components.label[i] == main).collect();
                 let mut rng = SplitMix64::new(seed);
                 frame.cell(cells[rng.below(cells.len() as u64) as usize])
             }
         };
         let reachable = reachable_from(&frame, &blocked, start);
         let reachable_cells = reachable.iter().filter(|&&r| r).count();
-        Ok(Self {
-            frame,
-            blocked,
-            start,
-            reachable,
-            reachable_cells,
-            name: name.to_owned(),
-        })
+        Ok(Self { frame, blocked, start, reachable, reachable_cells, name: name.to_owned() })
     }
 
     /// Whether a cell is a wall; cells off the grid are.
@@ -337,10 +299,7 @@ impl Components {
             while let Some(i) = stack.pop() {
                 size += 1;
                 let c = frame.cell(i);
-                border |= c.x == 0
-                    || c.y == 0
-                    || c.x + 1 == frame.width as i32
-                    || c.y + 1 == frame.height as i32;
+                border |= c.x == 0 || c.y == 0 || c.x + 1 == frame.width as i32 || c.y + 1 == frame.height as i32;
                 for (dx, dy) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
                     let n = Cell::new(c.x + dx, c.y + dy);
                     if frame.contains(n) {
@@ -355,11 +314,7 @@ impl Components {
             sizes.push(size);
             touches_border.push(border);
         }
-        Self {
-            label,
-            sizes,
-            touches_border,
-        }
+        Self { label, sizes, touches_border }
     }
 
     /// The component a team should start in: the largest one, unless the
@@ -367,15 +322,12 @@ impl Components {
     /// its size, as when the white outside of a drawing is the largest free
     /// area (`stage_hospital`, `stage_autolab`).
     fn main(&self) -> Option<u32> {
-        let largest =
-            (0..self.sizes.len()).max_by_key(|&i| (self.sizes[i], std::cmp::Reverse(i)))?;
+        let largest = (0..self.sizes.len()).max_by_key(|&i| (self.sizes[i], std::cmp::Reverse(i)))?;
         let inner = (0..self.sizes.len())
             .filter(|&i| !self.touches_border[i])
             .max_by_key(|&i| (self.sizes[i], std::cmp::Reverse(i)));
         Some(match inner {
-            Some(i) if self.touches_border[largest] && self.sizes[i] * 4 >= self.sizes[largest] => {
-                i as u32
-            }
+            Some(i) if self.touches_border[largest] && self.sizes[i] * 4 >= self.sizes[largest] => i as u32,
             _ => largest as u32,
         })
     }
@@ -385,13 +337,9 @@ impl Components {
     /// walls' bounding box is searched, so the team starts inside the building.
     fn roomiest_cell(&self, frame: &GridFrame, blocked: &[bool], component: u32) -> Cell {
         let clearance = chessboard_clearance(frame, blocked);
-        let (mut x0, mut y0, mut x1, mut y1) =
-            (0, 0, frame.width as i32 - 1, frame.height as i32 - 1);
+        let (mut x0, mut y0, mut x1, mut y1) = (0, 0, frame.width as i32 - 1, frame.height as i32 - 1);
         if self.touches_border[component as usize] {
-            let walls: Vec<Cell> = (0..frame.len())
-                .filter(|&i| blocked[i])
-                .map(|i| frame.cell(i))
-                .collect();
+            let walls: Vec<Cell> = (0..frame.len()).filter(|&i| blocked[i]).map(|i| frame.cell(i)).collect();
             if let (Some(minx), Some(maxx), Some(miny), Some(maxy)) = (
                 walls.iter().map(|c| c.x).min(),
                 walls.iter().map(|c| c.x).max(),
@@ -438,8 +386,7 @@ fn chessboard_clearance(frame: &GridFrame, blocked: &[bool]) -> Vec<u32> {
     let mut queue = VecDeque::new();
     for i in 0..frame.len() {
         let c = frame.cell(i);
-        let at_edge =
-            c.x == 0 || c.y == 0 || c.x + 1 == frame.width as i32 || c.y + 1 == frame.height as i32;
+        let at_edge = c.x == 0 || c.y == 0 || c.x + 1 == frame.width as i32 || c.y + 1 == frame.height as i32;
         if blocked[i] {
             distance[i] = 0;
             queue.push_back(i);
@@ -472,22 +419,8 @@ mod tests {
     fn coarsening_keeps_one_pixel_walls_closed() {
         // 6×4 pixels, a one-pixel vertical wall in column 3 (image rows top first).
         let picture = ["...#..", "...#..", "...#..", "...#.."];
-        let free: Vec<bool> = picture
-            .iter()
-            .flat_map(|r| r.chars().map(|c| c == '.'))
-            .collect();
-        let world = World::from_pixels(
-            "wall",
-            6,
-            4,
-            &free,
-            0.05,
-            Point2::origin(),
-            0.1,
-            StartChoice::Auto,
-            0,
-        )
-        .unwrap();
+        let free: Vec<bool> = picture.iter().flat_map(|r| r.chars().map(|c| c == '.')).collect();
+        let world = World::from_pixels("wall", 6, 4, &free, 0.05, Point2::origin(), 0.1, StartChoice::Auto, 0).unwrap();
         assert_eq!((world.frame.width, world.frame.height), (3, 2));
         // Coarse column 1 holds pixel columns 2 and 3: the wall survives.
         for y in 0..2 {
@@ -507,32 +440,15 @@ mod tests {
         }
         picture.push("##########".to_string());
         picture[1] = "#.#......#".to_string(); // a wall pixel near the top-left
-        let free: Vec<bool> = picture
-            .iter()
-            .flat_map(|r| r.chars().map(|c| c == '.'))
-            .collect();
-        let world = World::from_pixels(
-            "room",
-            10,
-            8,
-            &free,
-            1.0,
-            Point2::origin(),
-            1.0,
-            StartChoice::Auto,
-            0,
-        )
-        .unwrap();
+        let free: Vec<bool> = picture.iter().flat_map(|r| r.chars().map(|c| c == '.')).collect();
+        let world = World::from_pixels("room", 10, 8, &free, 1.0, Point2::origin(), 1.0, StartChoice::Auto, 0).unwrap();
         // Image row 1 is grid row 6: the wall pixel is cell (2, 6).
         assert!(world.is_blocked(Cell::new(2, 6)));
         assert!(!world.is_blocked(Cell::new(2, 1)));
         assert_eq!(world.reachable_cells, 8 * 6 - 1);
         let s = world.start;
         assert!(!world.is_blocked(s));
-        assert!(
-            (3..=6).contains(&s.x) && (2..=5).contains(&s.y),
-            "start {s:?} is not central"
-        );
+        assert!((3..=6).contains(&s.x) && (2..=5).contains(&s.y), "start {s:?} is not central");
     }
 
     #[test]
@@ -543,28 +459,13 @@ mod tests {
         let free: Vec<bool> = (0..w * h)
             .map(|i| {
                 let (x, y) = (i % w, i / w);
-                let on_wall = ((x == 2 || x == 17) && (2..=9).contains(&y))
-                    || ((y == 2 || y == 9) && (2..=17).contains(&x));
+                let on_wall =
+                    ((x == 2 || x == 17) && (2..=9).contains(&y)) || ((y == 2 || y == 9) && (2..=17).contains(&x));
                 !on_wall
             })
             .collect();
-        let world = World::from_pixels(
-            "house",
-            w,
-            h,
-            &free,
-            1.0,
-            Point2::origin(),
-            1.0,
-            StartChoice::Auto,
-            0,
-        )
-        .unwrap();
-        assert_eq!(
-            world.reachable_cells,
-            14 * 6,
-            "the team starts inside the house"
-        );
+        let world = World::from_pixels("house", w, h, &free, 1.0, Point2::origin(), 1.0, StartChoice::Auto, 0).unwrap();
+        assert_eq!(world.reachable_cells, 14 * 6, "the team starts inside the house");
     }
 
     #[test]

@@ -8,27 +8,11 @@ use std::process::Command;
 fn run_json_prints_the_promised_figures() {
     let map = Path::new(env!("CARGO_MANIFEST_DIR")).join("../maps/nav2_depot.yaml");
     let output = Command::new(env!("CARGO_BIN_EXE_fleet-sim"))
-        .args([
-            "run",
-            "--robots",
-            "2",
-            "--policy",
-            "nearest",
-            "--seed",
-            "4",
-            "--cell-size",
-            "0.25",
-            "--json",
-            "--map",
-        ])
+        .args(["run", "--robots", "2", "--policy", "nearest", "--seed", "4", "--cell-size", "0.25", "--json", "--map"])
         .arg(&map)
         .output()
         .unwrap();
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     let stdout = String::from_utf8(output.stdout).unwrap();
     let last = stdout.lines().last().unwrap();
     let report: serde_json::Value = serde_json::from_str(last).unwrap();

@@ -7,6 +7,7 @@
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
 
+use exploration::assign::linear_sum_assignment;
 use exploration::cost::{Corners, TraversalMap, cost_map_with};
 use exploration::frontier::{Adjacency, FrontierMap, clusters};
 use exploration::grid::{Cell, GridFrame, OccupancyGrid};
@@ -24,10 +25,7 @@ fn costmap(c: &mut Criterion) {
     let n = 2000;
     let occupied = gen_v1::obstacles(n, n, SEED);
     let frame = unit_frame(n);
-    let costs: Vec<f32> = occupied
-        .iter()
-        .map(|&o| if o { f32::INFINITY } else { 1.0 })
-        .collect();
+    let costs: Vec<f32> = occupied.iter().map(|&o| if o { f32::INFINITY } else { 1.0 }).collect();
     let traversal = TraversalMap::from_costs(frame, costs);
     let source = Cell::new((n / 2) as i32, (n / 2) as i32);
     let map = cost_map_with(&traversal, &[source], Corners::Cut);
@@ -39,9 +37,7 @@ fn costmap(c: &mut Criterion) {
             max = max.max(v);
         }
     }
-    eprintln!(
-        "check costmap_8connected 2000x2000: reachable {reachable} max {max:.3} sum {sum:.1}"
-    );
+    eprintln!("check costmap_8connected 2000x2000: reachable {reachable} max {max:.3} sum {sum:.1}");
     c.bench_function("costmap_8connected 2000x2000", |b| {
         b.iter(|| cost_map_with(black_box(&traversal), &[source], Corners::Cut))
     });
@@ -77,9 +73,21 @@ fn frontier(c: &mut Criterion) {
     c.bench_function("frontier_label_centroids 2000x2000", |b| b.iter(detect));
 }
 
+fn assignment(c: &mut Criterion) {
+    for (rows, cols) in [(200, 2000), (1000, 1000)] {
+        let (q, f) = gen_v1::lsap(rows, cols, SEED);
+        let solved = linear_sum_assignment(&f, rows, cols).unwrap();
+        let total_q: i64 = solved.row_to_col.iter().enumerate().map(|(i, j)| q[i * cols + j.unwrap()]).sum();
+        eprintln!("check lsap {rows}x{cols}: total_q {total_q} assigned {}", solved.row_to_col.len());
+        c.bench_function(&format!("lsap {rows}x{cols}"), |b| {
+            b.iter(|| linear_sum_assignment(black_box(&f), rows, cols).unwrap())
+        });
+    }
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(10).warm_up_time(std::time::Duration::from_secs(1));
-    targets = costmap, frontier
+    targets = costmap, frontier, assignment
 }
 criterion_main!(benches);

@@ -70,12 +70,7 @@ pub fn occupancy(h: usize, w: usize, seed: u64) -> Vec<u8> {
 /// `lsap_cost(R, C, seed)`: the integer costs q (31-bit) and the float costs q / 2^31.
 pub fn lsap(rows: usize, cols: usize, seed: u64) -> (Vec<i64>, Vec<f64>) {
     let mut rng = SplitMix64::new(seed ^ ((rows as u64) << 32) ^ cols as u64);
-    let q: Vec<i64> = (0..rows * cols)
-        .map(|_| (rng.next_u64() >> 33) as i64)
-        .collect();
-    let f = q
-        .iter()
-        .map(|&v| v as f64 / f64::from(1u32 << 31))
-        .collect();
+    let q: Vec<i64> = (0..rows * cols).map(|_| (rng.next_u64() >> 33) as i64).collect();
+    let f = q.iter().map(|&v| v as f64 / f64::from(1u32 << 31)).collect();
     (q, f)
 }

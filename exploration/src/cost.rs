@@ -51,12 +51,7 @@ impl TraversalMap {
                 step_range = (step_range.0.min(c), step_range.1.max(c));
             }
         }
-        Self {
-            frame,
-            padded,
-            passable_bits,
-            step_range,
-        }
+        Self { frame, padded, passable_bits, step_range }
     }
 }
 
@@ -76,17 +71,8 @@ impl TraversalMap {
     /// configuration space of a circular robot, Bautin et al. 2011 §IV-B).
     pub fn free_space(grid: &OccupancyGrid, footprint_radius_m: f64) -> Self {
         let frame = *grid.frame();
-        let mut cost_per_metre: Vec<f32> = grid
-            .cells()
-            .iter()
-            .map(|&v| {
-                if classify(v) == CellClass::Free {
-                    1.0
-                } else {
-                    f32::INFINITY
-                }
-            })
-            .collect();
+        let mut cost_per_metre: Vec<f32> =
+            grid.cells().iter().map(|&v| if classify(v) == CellClass::Free { 1.0 } else { f32::INFINITY }).collect();
         inflate_obstacles(grid, footprint_radius_m, &mut cost_per_metre);
         Self::from_unpadded(frame, &cost_per_metre)
     }
@@ -97,43 +83,18 @@ impl TraversalMap {
     /// passages and cells near walls cost more). Passability is decided on the
     /// unsmoothed map, so smoothing never opens a thin wall. Unknown cells are
     /// impassable and count as P = 0.5 in the smoothing.
-    pub fn burgard(
-        grid: &OccupancyGrid,
-        occ_max: f64,
-        smoothing_sigma_m: f64,
-        footprint_radius_m: f64,
-    ) -> Self {
+    pub fn burgard(grid: &OccupancyGrid, occ_max: f64, smoothing_sigma_m: f64, footprint_radius_m: f64) -> Self {
         let frame = *grid.frame();
-        let probabilities: Vec<f32> = grid
-            .cells()
-            .iter()
-            .map(|&v| {
-                if v == UNKNOWN {
-                    0.5
-                } else {
-                    f32::from(v) / 100.0
-                }
-            })
-            .collect();
+        let probabilities: Vec<f32> =
+            grid.cells().iter().map(|&v| if v == UNKNOWN { 0.5 } else { f32::from(v) / 100.0 }).collect();
         let sigma_cells = smoothing_sigma_m / frame.resolution;
-        let smoothed = gaussian_blur(
-            &probabilities,
-            frame.width as usize,
-            frame.height as usize,
-            sigma_cells,
-        );
+        let smoothed = gaussian_blur(&probabilities, frame.width as usize, frame.height as usize, sigma_cells);
         let occ_max_percent = (occ_max * 100.0).round().clamp(0.0, 100.0) as u8;
         let mut cost_per_metre: Vec<f32> = grid
             .cells()
             .iter()
             .zip(&smoothed)
-            .map(|(&v, &p)| {
-                if v == UNKNOWN || v > occ_max_percent {
-                    f32::INFINITY
-                } else {
-                    p
-                }
-            })
+            .map(|(&v, &p)| if v == UNKNOWN || v > occ_max_percent { f32::INFINITY } else { p })
             .collect();
         inflate_obstacles(grid, footprint_radius_m, &mut cost_per_metre);
         Self::from_unpadded(frame, &cost_per_metre)
@@ -145,10 +106,7 @@ impl TraversalMap {
     /// If there is not one cost per cell, or a cost is negative or NaN.
     pub fn from_costs(frame: GridFrame, cost_per_metre: Vec<f32>) -> Self {
         assert_eq!(cost_per_metre.len(), frame.len(), "one cost per cell");
-        assert!(
-            cost_per_metre.iter().all(|c| *c >= 0.0),
-            "costs are non-negative numbers"
-        );
+        assert!(cost_per_metre.iter().all(|c| *c >= 0.0), "costs are non-negative numbers");
         Self::from_unpadded(frame, &cost_per_metre)
     }
 
@@ -212,9 +170,8 @@ pub fn gaussian_blur(values: &[f32], width: usize, height: usize, sigma: f64) ->
         return values.to_vec();
     }
     let radius = (3.0 * sigma).ceil() as isize;
-    let kernel: Vec<f32> = (-radius..=radius)
-        .map(|k| (-((k * k) as f64) / (2.0 * sigma * sigma)).exp() as f32)
-        .collect();
+    let kernel: Vec<f32> =
+        (-radius..=radius).map(|k| (-((k * k) as f64) / (2.0 * sigma * sigma)).exp() as f32).collect();
     let total: f32 = kernel.iter().sum();
     let kernel: Vec<f32> = kernel.iter().map(|k| k / total).collect();
     let mut tmp = vec![0.0f32; values.len()];
@@ -342,11 +299,7 @@ pub fn cost_map(traversal: &TraversalMap, sources: &[Cell]) -> CostMap {
 pub fn cost_map_with(traversal: &TraversalMap, sources: &[Cell], corners: Corners) -> CostMap {
     let frame = traversal.frame;
     let mut cost = vec![f32::INFINITY; traversal.padded.len()];
-    let starts: Vec<usize> = sources
-        .iter()
-        .filter(|s| frame.contains(**s))
-        .map(|&s| padded_index(&frame, s))
-        .collect();
+    let starts: Vec<usize> = sources.iter().filter(|s| frame.contains(**s)).map(|&s| padded_index(&frame, s)).collect();
     for &i in &starts {
         cost[i] = 0.0;
     }
@@ -356,13 +309,7 @@ pub fn cost_map_with(traversal: &TraversalMap, sources: &[Cell], corners: Corner
     let stride = frame.width as usize + 2;
     let uniform = min_step == max_step;
     let cut = corners == Corners::Cut;
-    let weighted = Weighted {
-        costs: &traversal.padded,
-        bits: &traversal.passable_bits,
-        stride,
-        orthogonal,
-        diagonal,
-    };
+    let weighted = Weighted { costs: &traversal.padded, bits: &traversal.passable_bits, stride, orthogonal, diagonal };
     let constant = Uniform {
         bits: &traversal.passable_bits,
         stride,
@@ -403,24 +350,16 @@ struct Weighted<'a> {
 
 impl Neighbourhood for Weighted<'_> {
     #[inline(always)]
-    fn neighbours<const CUT: bool>(
-        &self,
-        i: usize,
-        here: f32,
-        mut improve: impl FnMut(usize, f32),
-    ) {
+    fn neighbours<const CUT: bool>(&self, i: usize, here: f32, mut improve: impl FnMut(usize, f32)) {
         let s = self.stride;
         for j in [i + 1, i - 1, i + s, i - s] {
             if bit(self.bits, j) {
                 improve(j, here + self.orthogonal * self.costs[j]);
             }
         }
-        for (j, a, b) in [
-            (i + s + 1, i + 1, i + s),
-            (i + s - 1, i - 1, i + s),
-            (i - s + 1, i + 1, i - s),
-            (i - s - 1, i - 1, i - s),
-        ] {
+        for (j, a, b) in
+            [(i + s + 1, i + 1, i + s), (i + s - 1, i - 1, i + s), (i - s + 1, i + 1, i - s), (i - s - 1, i - 1, i - s)]
+        {
             if bit(self.bits, j) && (CUT || (bit(self.bits, a) && bit(self.bits, b))) {
                 improve(j, here + self.diagonal * self.costs[j]);
             }
@@ -439,12 +378,7 @@ struct Uniform<'a> {
 
 impl Neighbourhood for Uniform<'_> {
     #[inline(always)]
-    fn neighbours<const CUT: bool>(
-        &self,
-        i: usize,
-        here: f32,
-        mut improve: impl FnMut(usize, f32),
-    ) {
+    fn neighbours<const CUT: bool>(&self, i: usize, here: f32, mut improve: impl FnMut(usize, f32)) {
         let s = self.stride;
         let straight = here + self.orthogonal;
         for j in [i + 1, i - 1, i + s, i - s] {
@@ -453,12 +387,9 @@ impl Neighbourhood for Uniform<'_> {
             }
         }
         let slanted = here + self.diagonal;
-        for (j, a, b) in [
-            (i + s + 1, i + 1, i + s),
-            (i + s - 1, i - 1, i + s),
-            (i - s + 1, i + 1, i - s),
-            (i - s - 1, i - 1, i - s),
-        ] {
+        for (j, a, b) in
+            [(i + s + 1, i + 1, i + s), (i + s - 1, i - 1, i + s), (i - s + 1, i + 1, i - s), (i - s - 1, i - 1, i - s)]
+        {
             if bit(self.bits, j) && (CUT || (bit(self.bits, a) && bit(self.bits, b))) {
                 improve(j, slanted);
             }
@@ -469,12 +400,7 @@ impl Neighbourhood for Uniform<'_> {
 /// Settles every label from `starts`; `steps` is the cheapest and the
 /// dearest single step. Buckets when a small ring holds the step range, a
 /// binary heap otherwise.
-fn settle<N: Neighbourhood, const CUT: bool>(
-    n: &N,
-    cost: &mut [f32],
-    starts: &[usize],
-    steps: (f32, f32),
-) {
+fn settle<N: Neighbourhood, const CUT: bool>(n: &N, cost: &mut [f32], starts: &[usize], steps: (f32, f32)) {
     // Slightly narrower than the cheapest step, so rounding never puts a
     // relaxed cell into the bucket being drained.
     let width = steps.0 * (1.0 - 1e-5);
@@ -490,13 +416,7 @@ fn settle<N: Neighbourhood, const CUT: bool>(
     }
 }
 
-fn buckets<N: Neighbourhood, const CUT: bool>(
-    n: &N,
-    cost: &mut [f32],
-    starts: &[usize],
-    width: f32,
-    ring: usize,
-) {
+fn buckets<N: Neighbourhood, const CUT: bool>(n: &N, cost: &mut [f32], starts: &[usize], width: f32, ring: usize) {
     // A power-of-two ring turns the bucket's slot into a mask.
     let ring = ring.next_power_of_two();
     let slot_mask = ring - 1;
@@ -572,12 +492,7 @@ fn unkey(k: u64) -> (f32, usize) {
 /// `start` to `goal`, or `None` when `goal` cannot be reached.
 ///
 /// Complexity: O(N log N) in the worst case, far less when the goal is near.
-pub fn shortest_path(
-    frame: &GridFrame,
-    start: Cell,
-    goal: Cell,
-    passable: impl Fn(Cell) -> bool,
-) -> Option<Vec<Cell>> {
+pub fn shortest_path(frame: &GridFrame, start: Cell, goal: Cell, passable: impl Fn(Cell) -> bool) -> Option<Vec<Cell>> {
     if !frame.contains(start) || !frame.contains(goal) || !passable(goal) {
         return None;
     }
@@ -612,18 +527,11 @@ pub fn shortest_path(
                 continue;
             }
             let diagonal = dx != 0 && dy != 0;
-            if diagonal
-                && !(passable(Cell::new(c.x + dx, c.y)) && passable(Cell::new(c.x, c.y + dy)))
-            {
+            if diagonal && !(passable(Cell::new(c.x + dx, c.y)) && passable(Cell::new(c.x, c.y + dy))) {
                 continue;
             }
             let j = frame.index(n);
-            let next = g[i]
-                + if diagonal {
-                    std::f32::consts::SQRT_2
-                } else {
-                    1.0
-                };
+            let next = g[i] + if diagonal { std::f32::consts::SQRT_2 } else { 1.0 };
             if next < g[j] {
                 g[j] = next;
                 parent[j] = i as u32;
@@ -656,9 +564,7 @@ pub enum TraversalKind {
 impl TraversalKind {
     /// The free-space traversal for a footprint radius in metres.
     pub fn free_space(footprint_radius_m: f64) -> Self {
-        Self::FreeSpace {
-            footprint_mm: millimetres(footprint_radius_m),
-        }
+        Self::FreeSpace { footprint_mm: millimetres(footprint_radius_m) }
     }
 
     /// Burgard's traversal (see [`TraversalMap::burgard`]).
@@ -672,19 +578,10 @@ impl TraversalKind {
 
     fn build(self, grid: &OccupancyGrid) -> TraversalMap {
         match self {
-            Self::FreeSpace { footprint_mm } => {
-                TraversalMap::free_space(grid, metres(footprint_mm))
+            Self::FreeSpace { footprint_mm } => TraversalMap::free_space(grid, metres(footprint_mm)),
+            Self::Burgard { occ_max_percent, sigma_mm, footprint_mm } => {
+                TraversalMap::burgard(grid, f64::from(occ_max_percent) / 100.0, metres(sigma_mm), metres(footprint_mm))
             }
-            Self::Burgard {
-                occ_max_percent,
-                sigma_mm,
-                footprint_mm,
-            } => TraversalMap::burgard(
-                grid,
-                f64::from(occ_max_percent) / 100.0,
-                metres(sigma_mm),
-                metres(footprint_mm),
-            ),
         }
     }
 }
@@ -710,12 +607,7 @@ pub struct CostCache<'g> {
 impl<'g> CostCache<'g> {
     /// An empty cache over `grid`.
     pub fn new(grid: &'g OccupancyGrid) -> Self {
-        Self {
-            grid,
-            traversals: HashMap::new(),
-            maps: HashMap::new(),
-            computed: 0,
-        }
+        Self { grid, traversals: HashMap::new(), maps: HashMap::new(), computed: 0 }
     }
 
     /// The grid the cache works on.
@@ -726,10 +618,7 @@ impl<'g> CostCache<'g> {
     /// The traversal map of a kind, built on first use.
     pub fn traversal(&mut self, kind: TraversalKind) -> Arc<TraversalMap> {
         let grid = self.grid;
-        self.traversals
-            .entry(kind)
-            .or_insert_with(|| Arc::new(kind.build(grid)))
-            .clone()
+        self.traversals.entry(kind).or_insert_with(|| Arc::new(kind.build(grid))).clone()
     }
 
     /// The cost map from `source` over a traversal, computed on first use.
@@ -746,18 +635,9 @@ impl<'g> CostCache<'g> {
 
     /// Cost maps from several sources, the missing ones computed in parallel
     /// on up to `threads` threads.
-    pub fn cost_maps(
-        &mut self,
-        kind: TraversalKind,
-        sources: &[Cell],
-        threads: usize,
-    ) -> Vec<Arc<CostMap>> {
+    pub fn cost_maps(&mut self, kind: TraversalKind, sources: &[Cell], threads: usize) -> Vec<Arc<CostMap>> {
         let traversal = self.traversal(kind);
-        let mut missing: Vec<Cell> = sources
-            .iter()
-            .copied()
-            .filter(|s| !self.maps.contains_key(&(kind, *s)))
-            .collect();
+        let mut missing: Vec<Cell> = sources.iter().copied().filter(|s| !self.maps.contains_key(&(kind, *s))).collect();
         missing.sort_unstable();
         missing.dedup();
         let threads = threads.clamp(1, missing.len().max(1));
@@ -768,17 +648,10 @@ impl<'g> CostCache<'g> {
                     .chunks(chunk)
                     .map(|part| {
                         let traversal = &traversal;
-                        scope.spawn(move || {
-                            part.iter()
-                                .map(|&s| (s, cost_map(traversal, &[s])))
-                                .collect::<Vec<_>>()
-                        })
+                        scope.spawn(move || part.iter().map(|&s| (s, cost_map(traversal, &[s]))).collect::<Vec<_>>())
                     })
                     .collect();
-                handles
-                    .into_iter()
-                    .flat_map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
-                    .collect()
+                handles.into_iter().flat_map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect()
             });
             for (s, map) in computed {
                 self.computed += 1;
@@ -916,10 +789,7 @@ mod tests {
         assert!((map.cost(Cell::new(1, 0)).unwrap() - 0.5).abs() < 1e-6);
         assert!((map.cost(Cell::new(2, 0)).unwrap() - 0.6).abs() < 1e-6);
         let strict = TraversalMap::burgard(&grid, 0.4, 0.0, 0.0);
-        assert_eq!(
-            cost_map(&strict, &[Cell::new(0, 0)]).cost(Cell::new(2, 0)),
-            None
-        );
+        assert_eq!(cost_map(&strict, &[Cell::new(0, 0)]).cost(Cell::new(2, 0)), None);
     }
 
     #[test]
@@ -945,11 +815,7 @@ mod tests {
         let a = cache.cost_map(kind, Cell::new(0, 0));
         let b = cache.cost_map(kind, Cell::new(0, 0));
         assert!(Arc::ptr_eq(&a, &b));
-        let many = cache.cost_maps(
-            kind,
-            &[Cell::new(0, 0), Cell::new(3, 1), Cell::new(2, 0)],
-            2,
-        );
+        let many = cache.cost_maps(kind, &[Cell::new(0, 0), Cell::new(3, 1), Cell::new(2, 0)], 2);
         assert_eq!(many.len(), 3);
         assert_eq!(cache.computed(), 3);
         assert_eq!(many[1].cost(Cell::new(3, 1)), Some(0.0));

@@ -13,9 +13,7 @@
 //! 8-connected components of frontier cells (Yamauchi's frontier regions;
 //! Bautin et al. 2011's frontiers F_j).
 
-use crate::grid::{
-    Cell, CellClass, CellRect, FREE_BELOW_PERCENT, GridFrame, NEIGHBOURS_8, OccupancyGrid, UNKNOWN,
-};
+use crate::grid::{Cell, CellClass, CellRect, FREE_BELOW_PERCENT, GridFrame, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
 
 /// Which neighbours of a free cell make it a frontier cell when unknown.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -84,12 +82,7 @@ impl FrontierMap {
         let frame = *grid.frame();
         let mask = frontier_mask_with(grid, adjacency);
         let count = mask.iter().filter(|&&f| f).count();
-        Self {
-            frame,
-            adjacency,
-            mask,
-            count,
-        }
+        Self { frame, adjacency, mask, count }
     }
 
     /// Recomputes the cells around `changed` (grown by one, since a cell's
@@ -145,12 +138,7 @@ impl FrontierMap {
 
     /// Every frontier cell, in row-major order.
     pub fn cells(&self) -> Vec<Cell> {
-        self.mask
-            .iter()
-            .enumerate()
-            .filter(|(_, f)| **f)
-            .map(|(i, _)| self.frame.cell(i))
-            .collect()
+        self.mask.iter().enumerate().filter(|(_, f)| **f).map(|(i, _)| self.frame.cell(i)).collect()
     }
 }
 
@@ -207,9 +195,7 @@ pub fn frontier_mask_with(grid: &OccupancyGrid, adjacency: Adjacency) -> Vec<boo
     // The border rows and columns, cell by cell.
     let border = (0..w)
         .flat_map(|x| [Cell::new(x as i32, 0), Cell::new(x as i32, h as i32 - 1)])
-        .chain(
-            (1..h - 1).flat_map(|y| [Cell::new(0, y as i32), Cell::new(w as i32 - 1, y as i32)]),
-        );
+        .chain((1..h - 1).flat_map(|y| [Cell::new(0, y as i32), Cell::new(w as i32 - 1, y as i32)]));
     for cell in border {
         mask[frame.index(cell)] = is_frontier_with(grid, cell, adjacency);
     }
@@ -280,9 +266,7 @@ pub fn clusters(frontier: &FrontierMap, min_size: usize) -> Vec<FrontierCluster>
 
 fn cluster_from_cells(cells: Vec<Cell>) -> FrontierCluster {
     let n = cells.len() as f64;
-    let (sx, sy) = cells.iter().fold((0.0, 0.0), |(sx, sy), c| {
-        (sx + f64::from(c.x), sy + f64::from(c.y))
-    });
+    let (sx, sy) = cells.iter().fold((0.0, 0.0), |(sx, sy), c| (sx + f64::from(c.x), sy + f64::from(c.y)));
     let centroid = (sx / n, sy / n);
     let representative = *cells
         .iter()
@@ -292,11 +276,7 @@ fn cluster_from_cells(cells: Vec<Cell>) -> FrontierCluster {
             da.total_cmp(&db).then(a.cmp(b))
         })
         .unwrap_or(&cells[0]);
-    FrontierCluster {
-        cells,
-        centroid,
-        representative,
-    }
+    FrontierCluster { cells, centroid, representative }
 }
 
 #[cfg(test)]
@@ -316,10 +296,7 @@ mod tests {
         let cells = frontier.cells();
         // (3,3) and (3,2) touch unknown cells at their right edge.
         assert_eq!(cells, vec![Cell::new(3, 2), Cell::new(3, 3)]);
-        assert!(
-            !cells.contains(&Cell::new(0, 3)),
-            "the grid edge is a wall, not unknown"
-        );
+        assert!(!cells.contains(&Cell::new(0, 3)), "the grid edge is a wall, not unknown");
         // (3,1) touches unknown (4,2) only at a corner.
         let with_corners = frontier_mask_with(&grid, Adjacency::EdgesAndCorners);
         assert!(with_corners[grid.frame().index(Cell::new(3, 1))]);
@@ -338,11 +315,7 @@ mod tests {
             "####", //
         ]);
         assert!(!is_frontier(&grid, Cell::new(1, 1)));
-        assert!(is_frontier_with(
-            &grid,
-            Cell::new(1, 1),
-            Adjacency::EdgesAndCorners
-        ));
+        assert!(is_frontier_with(&grid, Cell::new(1, 1), Adjacency::EdgesAndCorners));
     }
 
     proptest::proptest! {

@@ -38,9 +38,7 @@ pub fn probability_from_log_odds(l: f32) -> f32 {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum PatchError {
     /// Width or height is zero.
-    #[error(
-        "the patch rectangle is empty ({width}×{height} cells); width and height must be at least 1"
-    )]
+    #[error("the patch rectangle is empty ({width}×{height} cells); width and height must be at least 1")]
     Empty {
         /// Columns given.
         width: u32,
@@ -113,11 +111,7 @@ pub struct Patch {
 
 impl Patch {
     /// A patch of occupancy probabilities; `unknown` is empty or one flag per cell.
-    pub fn from_probabilities(
-        rect: CellRect,
-        values: &[f32],
-        unknown: &[bool],
-    ) -> Result<Self, PatchError> {
+    pub fn from_probabilities(rect: CellRect, values: &[f32], unknown: &[bool]) -> Result<Self, PatchError> {
         Self::build(rect, values, unknown, |index, value| {
             if !value.is_finite() {
                 Err(PatchError::NotFinite { index, value })
@@ -130,17 +124,9 @@ impl Patch {
     }
 
     /// A patch of log-odds; `unknown` is empty or one flag per cell.
-    pub fn from_log_odds(
-        rect: CellRect,
-        values: &[f32],
-        unknown: &[bool],
-    ) -> Result<Self, PatchError> {
+    pub fn from_log_odds(rect: CellRect, values: &[f32], unknown: &[bool]) -> Result<Self, PatchError> {
         Self::build(rect, values, unknown, |index, value| {
-            if value.is_finite() {
-                Ok(value)
-            } else {
-                Err(PatchError::NotFinite { index, value })
-            }
+            if value.is_finite() { Ok(value) } else { Err(PatchError::NotFinite { index, value }) }
         })
     }
 
@@ -148,10 +134,7 @@ impl Patch {
     /// [`Patch::log_odds`]. Values are trusted.
     pub fn from_stored(rect: CellRect, log_odds: Vec<f32>) -> Result<Self, PatchError> {
         if rect.width == 0 || rect.height == 0 {
-            return Err(PatchError::Empty {
-                width: rect.width,
-                height: rect.height,
-            });
+            return Err(PatchError::Empty { width: rect.width, height: rect.height });
         }
         if log_odds.len() as u64 != rect.area() {
             return Err(PatchError::ValueCount {
@@ -171,25 +154,14 @@ impl Patch {
         convert: impl Fn(usize, f32) -> Result<f32, PatchError>,
     ) -> Result<Self, PatchError> {
         if rect.width == 0 || rect.height == 0 {
-            return Err(PatchError::Empty {
-                width: rect.width,
-                height: rect.height,
-            });
+            return Err(PatchError::Empty { width: rect.width, height: rect.height });
         }
         let expected = rect.area();
         if values.len() as u64 != expected {
-            return Err(PatchError::ValueCount {
-                width: rect.width,
-                height: rect.height,
-                expected,
-                got: values.len(),
-            });
+            return Err(PatchError::ValueCount { width: rect.width, height: rect.height, expected, got: values.len() });
         }
         if !unknown.is_empty() && unknown.len() as u64 != expected {
-            return Err(PatchError::UnknownMaskLength {
-                expected,
-                got: unknown.len(),
-            });
+            return Err(PatchError::UnknownMaskLength { expected, got: unknown.len() });
         }
         let log_odds = values
             .iter()
@@ -304,9 +276,7 @@ impl MapFusion {
     pub fn apply(&mut self, layer: LayerId, patch: &Patch) -> Result<FusionChange, PatchError> {
         patch.check_inside(&self.frame)?;
         let (tiles_x, tiles_y) = (self.tiles_x, self.tiles_y);
-        let layer = self.layers.entry(layer).or_insert_with(|| Layer {
-            tiles: vec![None; tiles_x * tiles_y],
-        });
+        let layer = self.layers.entry(layer).or_insert_with(|| Layer { tiles: vec![None; tiles_x * tiles_y] });
         let rect = patch.rect();
         let width = self.frame.width as usize;
         let mut change = FusionChange::default();
@@ -314,16 +284,14 @@ impl MapFusion {
         let mut values = patch.log_odds().iter();
         for y in rect.y..rect.y_end() {
             for x in rect.x..rect.x_end() {
-                let Some(&new) = values.next() else {
-                    unreachable!("a validated patch has one value per cell")
-                };
+                let Some(&new) = values.next() else { unreachable!("a validated patch has one value per cell") };
                 if new.is_nan() {
                     continue;
                 }
                 let (x, y) = (x as usize, y as usize);
                 let tile_index = (y >> TILE_SHIFT) * tiles_x + (x >> TILE_SHIFT);
-                let tile = layer.tiles[tile_index]
-                    .get_or_insert_with(|| vec![f32::NAN; TILE * TILE].into_boxed_slice());
+                let tile =
+                    layer.tiles[tile_index].get_or_insert_with(|| vec![f32::NAN; TILE * TILE].into_boxed_slice());
                 let slot = &mut tile[(y & (TILE - 1)) * TILE + (x & (TILE - 1))];
                 let old = *slot;
                 if old == new {
@@ -370,9 +338,7 @@ impl MapFusion {
 
 /// The stored value of a cell with log-odds sum `sum`.
 fn fused_percent(sum: f32) -> u8 {
-    percent_from_probability(probability_from_log_odds(
-        sum.clamp(LOG_ODDS_MIN, LOG_ODDS_MAX),
-    ))
+    percent_from_probability(probability_from_log_odds(sum.clamp(LOG_ODDS_MIN, LOG_ODDS_MAX)))
 }
 
 #[cfg(test)]
@@ -436,11 +402,7 @@ mod tests {
         let rect = CellRect::new(0, 0, 2, 2);
         assert!(matches!(
             Patch::from_probabilities(rect, &[0.5; 3], &[]),
-            Err(PatchError::ValueCount {
-                expected: 4,
-                got: 3,
-                ..
-            })
+            Err(PatchError::ValueCount { expected: 4, got: 3, .. })
         ));
         assert!(matches!(
             Patch::from_probabilities(rect, &[0.5, f32::NAN, 0.5, 0.5], &[]),
@@ -463,20 +425,10 @@ mod tests {
             Err(PatchError::Empty { .. })
         ));
         // A NaN under the unknown mask is ignored.
-        assert!(
-            Patch::from_probabilities(
-                rect,
-                &[0.5, f32::NAN, 0.5, 0.5],
-                &[false, true, false, false]
-            )
-            .is_ok()
-        );
+        assert!(Patch::from_probabilities(rect, &[0.5, f32::NAN, 0.5, 0.5], &[false, true, false, false]).is_ok());
         let mut fusion = MapFusion::new(frame());
         let outside = patch(CellRect::new(69, 39, 2, 1), 0.5);
-        assert!(matches!(
-            fusion.apply(1, &outside),
-            Err(PatchError::OutsideGrid { .. })
-        ));
+        assert!(matches!(fusion.apply(1, &outside), Err(PatchError::OutsideGrid { .. })));
         assert_eq!(fusion.grid().known_cells(), 0);
     }
 }

@@ -39,16 +39,7 @@ impl Cell {
 }
 
 /// The eight neighbour offsets, orthogonal ones first.
-pub const NEIGHBOURS_8: [(i32, i32); 8] = [
-    (1, 0),
-    (-1, 0),
-    (0, 1),
-    (0, -1),
-    (1, 1),
-    (-1, 1),
-    (1, -1),
-    (-1, -1),
-];
+pub const NEIGHBOURS_8: [(i32, i32); 8] = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, 1), (1, -1), (-1, -1)];
 
 /// An axis-aligned rectangle of cells, `x .. x + width` by `y .. y + height`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -66,12 +57,7 @@ pub struct CellRect {
 impl CellRect {
     /// The rectangle with lower-left cell `(x, y)` and the given size.
     pub const fn new(x: i32, y: i32, width: u32, height: u32) -> Self {
-        Self {
-            x,
-            y,
-            width,
-            height,
-        }
+        Self { x, y, width, height }
     }
 
     /// The smallest rectangle holding both corner cells.
@@ -131,18 +117,12 @@ impl CellRect {
     /// Grown by `margin` cells on every side.
     pub fn grown(&self, margin: u32) -> Self {
         let m = margin as i32;
-        Self::new(
-            self.x - m,
-            self.y - m,
-            self.width + 2 * margin,
-            self.height + 2 * margin,
-        )
+        Self::new(self.x - m, self.y - m, self.width + 2 * margin, self.height + 2 * margin)
     }
 
     /// Every cell, row by row from the bottom.
     pub fn cells(&self) -> impl Iterator<Item = Cell> + '_ {
-        (self.y..self.y_end())
-            .flat_map(move |y| (self.x..self.x_end()).map(move |x| Cell::new(x, y)))
+        (self.y..self.y_end()).flat_map(move |y| (self.x..self.x_end()).map(move |x| Cell::new(x, y)))
     }
 }
 
@@ -163,12 +143,7 @@ impl GridFrame {
     /// A frame of `width` × `height` cells of `resolution` metres whose lower-left
     /// corner is at `origin`.
     pub fn new(resolution: f64, origin: Point2, width: u32, height: u32) -> Self {
-        Self {
-            resolution,
-            origin,
-            width,
-            height,
-        }
+        Self { resolution, origin, width, height }
     }
 
     /// Number of cells.
@@ -229,10 +204,7 @@ impl GridFrame {
     /// The cell holding a world point, which may be off the grid.
     pub fn cell_from_world_unchecked(&self, point_in_world: &Point2) -> Cell {
         let local = point_in_world - self.origin;
-        Cell::new(
-            (local.x / self.resolution).floor() as i32,
-            (local.y / self.resolution).floor() as i32,
-        )
+        Cell::new((local.x / self.resolution).floor() as i32, (local.y / self.resolution).floor() as i32)
     }
 
     /// The world position of a cell's centre.
@@ -293,10 +265,7 @@ pub struct OccupancyGrid {
 impl OccupancyGrid {
     /// A grid where every cell is unknown.
     pub fn unknown(frame: GridFrame) -> Self {
-        Self {
-            cells: vec![UNKNOWN; frame.len()],
-            frame,
-        }
+        Self { cells: vec![UNKNOWN; frame.len()], frame }
     }
 
     /// A grid from row-major values (percent or [`UNKNOWN`]).
@@ -306,10 +275,7 @@ impl OccupancyGrid {
     /// percentage nor [`UNKNOWN`].
     pub fn from_cells(frame: GridFrame, cells: Vec<u8>) -> Self {
         assert_eq!(cells.len(), frame.len(), "one value per cell");
-        assert!(
-            cells.iter().all(|&v| v <= 100 || v == UNKNOWN),
-            "values are percentages or UNKNOWN"
-        );
+        assert!(cells.iter().all(|&v| v <= 100 || v == UNKNOWN), "values are percentages or UNKNOWN");
         Self { frame, cells }
     }
 
@@ -353,11 +319,7 @@ impl OccupancyGrid {
     /// (the map's border is a wall).
     #[inline]
     pub fn class_or_wall(&self, cell: Cell) -> CellClass {
-        if self.frame.contains(cell) {
-            self.class(cell)
-        } else {
-            CellClass::Occupied
-        }
+        if self.frame.contains(cell) { self.class(cell) } else { CellClass::Occupied }
     }
 
     /// P(occ) of an on-grid cell, or `None` when unknown.
@@ -423,15 +385,9 @@ mod tests {
             assert_eq!(f.cell(f.index(cell)), cell);
         }
         // The origin is the lower-left corner of cell (0, 0).
-        assert_eq!(
-            f.cell_from_world(&Point2::new(-2.0, 1.0)),
-            Some(Cell::new(0, 0))
-        );
+        assert_eq!(f.cell_from_world(&Point2::new(-2.0, 1.0)), Some(Cell::new(0, 0)));
         assert_eq!(f.cell_from_world(&Point2::new(-2.01, 1.0)), None);
-        assert_eq!(
-            f.cell_from_world(&Point2::new(2.99, 3.99)),
-            Some(Cell::new(9, 5))
-        );
+        assert_eq!(f.cell_from_world(&Point2::new(2.99, 3.99)), Some(Cell::new(9, 5)));
         assert_eq!(f.cell_from_world(&Point2::new(3.0, 3.0)), None);
     }
 
@@ -442,10 +398,7 @@ mod tests {
         assert!(!f.contains_rect(&CellRect::new(1, 0, 10, 6)));
         assert!(!f.contains_rect(&CellRect::new(-1, 0, 2, 2)));
         assert!(!f.contains_rect(&CellRect::new(0, 0, 0, 2)));
-        assert_eq!(
-            f.clip(&CellRect::new(8, 4, 5, 5)),
-            Some(CellRect::new(8, 4, 2, 2))
-        );
+        assert_eq!(f.clip(&CellRect::new(8, 4, 5, 5)), Some(CellRect::new(8, 4, 2, 2)));
         assert_eq!(f.clip(&CellRect::new(20, 4, 5, 5)), None);
     }
 
@@ -456,15 +409,9 @@ mod tests {
         assert_eq!(a.intersection(&b), Some(CellRect::new(2, 3, 2, 1)));
         assert_eq!(a.union(&b), CellRect::new(0, 0, 6, 7));
         assert_eq!(a.including(Cell::new(-1, 5)), CellRect::new(-1, 0, 5, 6));
-        assert_eq!(
-            CellRect::spanning(Cell::new(3, 1), Cell::new(1, 2)),
-            CellRect::new(1, 1, 3, 2)
-        );
+        assert_eq!(CellRect::spanning(Cell::new(3, 1), Cell::new(1, 2)), CellRect::new(1, 1, 3, 2));
         assert_eq!(a.cells().count() as u64, a.area());
-        assert_eq!(
-            CellRect::new(0, 0, 2, 2).intersection(&CellRect::new(2, 0, 2, 2)),
-            None
-        );
+        assert_eq!(CellRect::new(0, 0, 2, 2).intersection(&CellRect::new(2, 0, 2, 2)), None);
     }
 
     #[test]

@@ -11,11 +11,16 @@
 //! - [`cost`]: traversal costs, cost maps (wavefront, Dijkstra, Burgard's
 //!   value iteration), obstacle inflation, smoothing, paths, a per-replanning cache.
 //! - [`visibility`]: ray casting and the range-sensor model shared with the simulator.
+//! - [`segment`]: distance transform, skeleton, critical points and
+//!   segments of the explored map.
+//! - [`assign`]: optimal assignment (the Hungarian problem) by shortest
+//!   augmenting paths.
 //! - [`policy`]: the coordination policies of the literature behind one interface.
 //! - [`rng`]: the seeded SplitMix64 generator every random choice uses.
 //!
 //! The papers behind the policies are in the repository's `docs/papers.md`.
 
+pub mod assign;
 pub mod cost;
 pub mod frontier;
 pub mod fusion;
@@ -23,6 +28,7 @@ pub mod grid;
 pub mod math;
 pub mod policy;
 pub mod rng;
+pub mod segment;
 pub mod visibility;
 
 #[cfg(test)]

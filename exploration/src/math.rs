@@ -13,11 +13,7 @@ pub type Isometry2 = nalgebra::Isometry2<f64>;
 /// Wraps an angle into (-π, π].
 pub fn normalize_angle(theta: f64) -> f64 {
     let wrapped = theta.rem_euclid(std::f64::consts::TAU);
-    if wrapped > std::f64::consts::PI {
-        wrapped - std::f64::consts::TAU
-    } else {
-        wrapped
-    }
+    if wrapped > std::f64::consts::PI { wrapped - std::f64::consts::TAU } else { wrapped }
 }
 
 #[cfg(test)]

@@ -21,28 +21,15 @@ use crate::grid::Cell;
 /// opaque cells, or past `to`. Returns `true` when it reached `to` unblocked.
 ///
 /// Complexity: O(cells crossed).
-pub fn walk_ray(
-    from: Cell,
-    to: (f64, f64),
-    opaque: impl Fn(Cell) -> bool,
-    mut visit: impl FnMut(Cell),
-) -> bool {
+pub fn walk_ray(from: Cell, to: (f64, f64), opaque: impl Fn(Cell) -> bool, mut visit: impl FnMut(Cell)) -> bool {
     let (x0, y0) = (f64::from(from.x) + 0.5, f64::from(from.y) + 0.5);
     let (dx, dy) = (to.0 - x0, to.1 - y0);
     let mut cell = from;
     visit(cell);
     let step_x = if dx > 0.0 { 1 } else { -1 };
     let step_y = if dy > 0.0 { 1 } else { -1 };
-    let t_delta_x = if dx == 0.0 {
-        f64::INFINITY
-    } else {
-        1.0 / dx.abs()
-    };
-    let t_delta_y = if dy == 0.0 {
-        f64::INFINITY
-    } else {
-        1.0 / dy.abs()
-    };
+    let t_delta_x = if dx == 0.0 { f64::INFINITY } else { 1.0 / dx.abs() };
+    let t_delta_y = if dy == 0.0 { f64::INFINITY } else { 1.0 / dy.abs() };
     // The start point is a cell centre, so the first boundary is half a cell away.
     let mut t_max_x = 0.5 * t_delta_x;
     let mut t_max_y = 0.5 * t_delta_y;
@@ -107,13 +94,7 @@ impl RangeSensor {
     /// for the opaque cell that stops a ray.
     ///
     /// Complexity: O(range²) cell visits.
-    pub fn scan(
-        &self,
-        origin: Cell,
-        heading: f64,
-        opaque: impl Fn(Cell) -> bool,
-        mut visit: impl FnMut(Cell, bool),
-    ) {
+    pub fn scan(&self, origin: Cell, heading: f64, opaque: impl Fn(Cell) -> bool, mut visit: impl FnMut(Cell, bool)) {
         let range = self.range_cells.max(0.0);
         if range < 0.5 {
             visit(origin, false);
@@ -122,16 +103,8 @@ impl RangeSensor {
         let fov = self.field_of_view.clamp(0.0, std::f64::consts::TAU);
         let rays = ((fov * 2.0 * range).ceil() as usize).max(1) + 1;
         let full_circle = fov >= std::f64::consts::TAU - 1e-9;
-        let start = if full_circle {
-            0.0
-        } else {
-            heading - fov / 2.0
-        };
-        let step = if full_circle {
-            fov / rays as f64
-        } else {
-            fov / (rays - 1) as f64
-        };
+        let start = if full_circle { 0.0 } else { heading - fov / 2.0 };
+        let step = if full_circle { fov / rays as f64 } else { fov / (rays - 1) as f64 };
         let (cx, cy) = (f64::from(origin.x) + 0.5, f64::from(origin.y) + 0.5);
         let range_sq = range * range;
         for k in 0..rays {
@@ -170,10 +143,7 @@ mod tests {
     fn walls_block_and_diagonal_squeezes_are_closed() {
         let wall = |c: Cell| c == Cell::new(2, 0);
         assert!(!line_of_sight(Cell::new(0, 0), Cell::new(4, 0), wall));
-        assert!(
-            line_of_sight(Cell::new(0, 0), Cell::new(2, 0), wall),
-            "a wall is itself visible"
-        );
+        assert!(line_of_sight(Cell::new(0, 0), Cell::new(2, 0), wall), "a wall is itself visible");
         // Two walls touching at a corner close the diagonal between them.
         let corner = |c: Cell| c == Cell::new(1, 0) || c == Cell::new(0, 1);
         assert!(!line_of_sight(Cell::new(0, 0), Cell::new(2, 2), corner));
@@ -183,10 +153,7 @@ mod tests {
 
     #[test]
     fn a_full_circle_scan_leaves_no_hole_in_open_space() {
-        let sensor = RangeSensor {
-            range_cells: 30.0,
-            field_of_view: std::f64::consts::TAU,
-        };
+        let sensor = RangeSensor { range_cells: 30.0, field_of_view: std::f64::consts::TAU };
         let origin = Cell::new(0, 0);
         let mut seen = HashSet::new();
         sensor.scan(
@@ -201,16 +168,10 @@ mod tests {
             for y in -30..=30 {
                 let inside = f64::from(x * x + y * y) <= 29.0 * 29.0;
                 if inside {
-                    assert!(
-                        seen.contains(&Cell::new(x, y)),
-                        "({x}, {y}) was never crossed"
-                    );
+                    assert!(seen.contains(&Cell::new(x, y)), "({x}, {y}) was never crossed");
                 }
                 if f64::from(x * x + y * y) > 30.0 * 30.0 {
-                    assert!(
-                        !seen.contains(&Cell::new(x, y)),
-                        "({x}, {y}) is out of range"
-                    );
+                    assert!(!seen.contains(&Cell::new(x, y)), "({x}, {y}) is out of range");
                 }
             }
         }
@@ -218,10 +179,7 @@ mod tests {
 
     #[test]
     fn a_half_circle_scan_sees_only_ahead_and_walls_cast_shadows() {
-        let sensor = RangeSensor {
-            range_cells: 10.0,
-            field_of_view: std::f64::consts::PI,
-        };
+        let sensor = RangeSensor { range_cells: 10.0, field_of_view: std::f64::consts::PI };
         let wall = |c: Cell| c.x == 3 && (-1..=1).contains(&c.y);
         let mut seen = HashSet::new();
         let mut hits = HashSet::new();
@@ -231,15 +189,9 @@ mod tests {
                 hits.insert(c);
             }
         });
-        assert!(
-            seen.iter().all(|c| c.x >= 0),
-            "a 180° sensor facing +x sees nothing behind"
-        );
+        assert!(seen.iter().all(|c| c.x >= 0), "a 180° sensor facing +x sees nothing behind");
         assert!(hits.contains(&Cell::new(3, 0)));
-        assert!(
-            !seen.contains(&Cell::new(6, 0)),
-            "the wall hides what is behind it"
-        );
+        assert!(!seen.contains(&Cell::new(6, 0)), "the wall hides what is behind it");
         assert!(seen.contains(&Cell::new(0, 8)));
     }
 }

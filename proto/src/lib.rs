@@ -10,6 +10,5 @@ pub mod v1 {
     tonic::include_proto!("exploration.v1");
 
     /// The encoded `FileDescriptorSet`, for gRPC server reflection.
-    pub const FILE_DESCRIPTOR_SET: &[u8] =
-        tonic::include_file_descriptor_set!("exploration_v1_descriptor");
+    pub const FILE_DESCRIPTOR_SET: &[u8] = tonic::include_file_descriptor_set!("exploration_v1_descriptor");
 }

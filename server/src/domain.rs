@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use exploration::fusion::Patch;
-use exploration::grid::GridFrame;
+use exploration::grid::{CellRect, GridFrame};
 use exploration::math::Point2;
 use exploration::policy::{Capabilities, PolicyConfig};
 
@@ -65,11 +65,7 @@ pub struct ReplanSettings {
 
 impl Default for ReplanSettings {
     fn default() -> Self {
-        Self {
-            distance_m: 3.0,
-            interval: Duration::from_secs(30),
-            frontier_change: 0.25,
-        }
+        Self { distance_m: 3.0, interval: Duration::from_secs(30), frontier_change: 0.25 }
     }
 }
 
@@ -376,6 +372,8 @@ pub struct TaskRecord {
     pub utility: f64,
     /// The policy's path cost.
     pub path_cost: f64,
+    /// The information-gain region expected at the target, if estimated.
+    pub gain_region: Option<CellRect>,
     /// When it was created.
     pub created_at: Timestamp,
     /// When it last changed.
@@ -410,6 +408,34 @@ pub struct AssignedTask {
     pub utility: f64,
     /// The policy's path cost.
     pub path_cost: f64,
+    /// The information-gain region expected at the target, in world coordinates.
+    pub gain_region: Option<(Point2, Point2)>,
+}
+
+/// Something that happened to a mission as a whole.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MissionEvent {
+    /// Its identity (0 before it is stored).
+    pub id: u64,
+    /// The mission.
+    pub mission_id: MissionId,
+    /// When.
+    pub at: Timestamp,
+    /// What ("policy_changed", ...).
+    pub kind: String,
+    /// Details.
+    pub detail: String,
+    /// Who.
+    pub actor: String,
+}
+
+/// A mission's latest segmentation, as kept.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredSegmentation {
+    /// When it was computed.
+    pub computed_at: Timestamp,
+    /// The segmentation.
+    pub segmentation: exploration::segment::Segmentation,
 }
 
 /// Policy parameters as given by a client, before validation.

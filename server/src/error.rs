@@ -61,9 +61,7 @@ impl From<Error> for tonic::Status {
             // Internals are logged here, once, and never shown to the client.
             Error::Store(cause) => {
                 tracing::error!(error = %cause, "store failure");
-                Status::internal(
-                    "internal error: the executive could not persist or read state; it logged the cause",
-                )
+                Status::internal("internal error: the executive could not persist or read state; it logged the cause")
             }
             Error::Internal(cause) => {
                 tracing::error!(error = %cause, "internal failure");

@@ -46,11 +46,7 @@ pub struct Config {
 impl Config {
     /// Defaults for a database file.
     pub fn new(db_path: impl Into<PathBuf>) -> Self {
-        Self {
-            db_path: db_path.into(),
-            durability: Durability::default(),
-            executive: ExecutiveSettings::default(),
-        }
+        Self { db_path: db_path.into(), durability: Durability::default(), executive: ExecutiveSettings::default() }
     }
 }
 
@@ -88,12 +84,8 @@ pub async fn run(
     let service = service::ExplorationService::new(executive, streams_end.clone());
 
     let (health, health_service) = tonic_health::server::health_reporter();
-    health
-        .set_serving::<pb::missions_server::MissionsServer<service::ExplorationService>>()
-        .await;
-    health
-        .set_serving::<pb::fleet_server::FleetServer<service::ExplorationService>>()
-        .await;
+    health.set_serving::<pb::missions_server::MissionsServer<service::ExplorationService>>().await;
+    health.set_serving::<pb::fleet_server::FleetServer<service::ExplorationService>>().await;
     let reflection = tonic_reflection::server::Builder::configure()
         .register_encoded_file_descriptor_set(pb::FILE_DESCRIPTOR_SET)
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
@@ -111,9 +103,7 @@ pub async fn run(
         async move {
             shutdown.await;
             tracing::info!("shutting down: draining requests");
-            health
-                .set_not_serving::<pb::fleet_server::FleetServer<service::ExplorationService>>()
-                .await;
+            health.set_not_serving::<pb::fleet_server::FleetServer<service::ExplorationService>>().await;
             streams_end.cancel();
         }
     };
@@ -122,13 +112,9 @@ pub async fn run(
         .add_service(reflection)
         .add_service(reflection_alpha)
         .add_service(
-            pb::missions_server::MissionsServer::new(service.clone())
-                .max_decoding_message_size(MAX_MESSAGE_BYTES),
+            pb::missions_server::MissionsServer::new(service.clone()).max_decoding_message_size(MAX_MESSAGE_BYTES),
         )
-        .add_service(
-            pb::fleet_server::FleetServer::new(service)
-                .max_decoding_message_size(MAX_MESSAGE_BYTES),
-        )
+        .add_service(pb::fleet_server::FleetServer::new(service).max_decoding_message_size(MAX_MESSAGE_BYTES))
         .serve_with_incoming_shutdown(incoming, drain)
         .await?;
     store.close().await;

@@ -11,31 +11,10 @@ use tonic::Code;
 /// The mission's counters and the robot's sequence number, to show a refused
 /// request changed nothing.
 async fn snapshot(exec: &TestExecutive, mission_id: u64) -> (u64, u64, Vec<u64>, Vec<u8>) {
-    let mission = exec
-        .missions()
-        .get_mission(pb::GetMissionRequest { mission_id })
-        .await
-        .unwrap()
-        .into_inner();
-    let robots = exec
-        .missions()
-        .list_robots(pb::ListRobotsRequest { mission_id })
-        .await
-        .unwrap()
-        .into_inner()
-        .robots;
-    let map = exec
-        .missions()
-        .get_map(pb::GetMapRequest { mission_id })
-        .await
-        .unwrap()
-        .into_inner();
-    (
-        mission.map_updates,
-        mission.known_cells,
-        robots.iter().map(|r| r.last_map_seq).collect(),
-        map.cells,
-    )
+    let mission = exec.missions().get_mission(pb::GetMissionRequest { mission_id }).await.unwrap().into_inner();
+    let robots = exec.missions().list_robots(pb::ListRobotsRequest { mission_id }).await.unwrap().into_inner().robots;
+    let map = exec.missions().get_map(pb::GetMapRequest { mission_id }).await.unwrap().into_inner();
+    (mission.map_updates, mission.known_cells, robots.iter().map(|r| r.last_map_seq).collect(), map.cells)
 }
 
 #[tokio::test]
@@ -48,11 +27,7 @@ async fn bad_map_updates_get_precise_statuses_and_change_nothing() {
     let robot = register(&mut fleet, mission.id, "r1", 1.0, 1.0).await;
 
     // A good update first.
-    let ok = fleet
-        .update_map(update(robot.id, 1, 1.0, 1.0, vec![patch(5, 5, 4, 3, 0.1)]))
-        .await
-        .unwrap()
-        .into_inner();
+    let ok = fleet.update_map(update(robot.id, 1, 1.0, 1.0, vec![patch(5, 5, 4, 3, 0.1)])).await.unwrap().into_inner();
     assert_eq!(ok.applied_seq, 1);
     let before = snapshot(&exec, mission.id).await;
     assert_eq!(before.0, 1);
@@ -85,46 +60,20 @@ async fn bad_map_updates_get_precise_statuses_and_change_nothing() {
         ),
         (
             "patch far outside",
-            update(
-                robot.id,
-                6,
-                1.0,
-                1.0,
-                vec![patch(4_000_000_000, 0, 1, 1, 0.1)],
-            ),
+            update(robot.id, 6, 1.0, 1.0, vec![patch(4_000_000_000, 0, 1, 1, 0.1)]),
             Code::InvalidArgument,
             "outside",
         ),
-        (
-            "empty patch",
-            update(robot.id, 6, 1.0, 1.0, vec![patch(0, 0, 0, 2, 0.1)]),
-            Code::InvalidArgument,
-            "empty",
-        ),
+        ("empty patch", update(robot.id, 6, 1.0, 1.0, vec![patch(0, 0, 0, 2, 0.1)]), Code::InvalidArgument, "empty"),
         (
             "cell count mismatch",
             update(robot.id, 6, 1.0, 1.0, vec![wrong_count]),
             Code::InvalidArgument,
             "carries 8 values",
         ),
-        (
-            "NaN probability",
-            update(robot.id, 6, 1.0, 1.0, vec![nan]),
-            Code::InvalidArgument,
-            "not a finite number",
-        ),
-        (
-            "probability above 1",
-            update(robot.id, 6, 1.0, 1.0, vec![above_one]),
-            Code::InvalidArgument,
-            "[0, 1]",
-        ),
-        (
-            "negative probability",
-            update(robot.id, 6, 1.0, 1.0, vec![negative]),
-            Code::InvalidArgument,
-            "[0, 1]",
-        ),
+        ("NaN probability", update(robot.id, 6, 1.0, 1.0, vec![nan]), Code::InvalidArgument, "not a finite number"),
+        ("probability above 1", update(robot.id, 6, 1.0, 1.0, vec![above_one]), Code::InvalidArgument, "[0, 1]"),
+        ("negative probability", update(robot.id, 6, 1.0, 1.0, vec![negative]), Code::InvalidArgument, "[0, 1]"),
         (
             "no encoding",
             update(robot.id, 6, 1.0, 1.0, vec![no_encoding]),
@@ -145,10 +94,7 @@ async fn bad_map_updates_get_precise_statuses_and_change_nothing() {
         ),
         (
             "pose missing",
-            pb::UpdateMapRequest {
-                pose: None,
-                ..update(robot.id, 6, 1.0, 1.0, vec![])
-            },
+            pb::UpdateMapRequest { pose: None, ..update(robot.id, 6, 1.0, 1.0, vec![]) },
             Code::InvalidArgument,
             "pose is required",
         ),
@@ -170,37 +116,18 @@ async fn bad_map_updates_get_precise_statuses_and_change_nothing() {
             Code::NotFound,
             "robot 999 does not exist",
         ),
-        (
-            "no robot",
-            update(0, 6, 1.0, 1.0, vec![]),
-            Code::InvalidArgument,
-            "robot_id is required",
-        ),
+        ("no robot", update(0, 6, 1.0, 1.0, vec![]), Code::InvalidArgument, "robot_id is required"),
     ];
     // A second good update so that a stale number below the last exists.
-    fleet
-        .update_map(update(robot.id, 5, 1.0, 1.0, vec![patch(5, 5, 1, 1, 0.1)]))
-        .await
-        .unwrap();
+    fleet.update_map(update(robot.id, 5, 1.0, 1.0, vec![patch(5, 5, 1, 1, 0.1)])).await.unwrap();
     let before = snapshot(&exec, mission.id).await;
     for (what, request, code, message) in cases {
         let status = fleet.update_map(request).await.unwrap_err();
         assert_eq!(status.code(), code, "{what}: {status:?}");
-        assert!(
-            status.message().contains(message),
-            "{what}: {:?} lacks {message:?}",
-            status.message()
-        );
-        assert_eq!(
-            snapshot(&exec, mission.id).await,
-            before,
-            "{what} changed the mission"
-        );
+        assert!(status.message().contains(message), "{what}: {:?} lacks {message:?}", status.message());
+        assert_eq!(snapshot(&exec, mission.id).await, before, "{what} changed the mission");
     }
-    let stale = fleet
-        .update_map(update(robot.id, 3, 1.0, 1.0, vec![patch(0, 0, 2, 2, 0.9)]))
-        .await
-        .unwrap_err();
+    let stale = fleet.update_map(update(robot.id, 3, 1.0, 1.0, vec![patch(0, 0, 2, 2, 0.9)])).await.unwrap_err();
     assert_eq!(stale.code(), Code::FailedPrecondition, "{stale:?}");
     assert!(stale.message().contains("stale"), "{stale:?}");
     assert_eq!(snapshot(&exec, mission.id).await, before);
@@ -212,86 +139,46 @@ async fn bad_missions_and_robots_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let exec = TestExecutive::start(&dir.path().join("x.db")).await;
     let mut missions = exec.missions();
-    let create = |frame: Option<pb::MapFrame>, policy: &str, params: &[(&str, f64)]| {
-        pb::CreateMissionRequest {
-            name: "m".into(),
-            frame,
-            policy: Some(pb::PolicySpec {
-                name: policy.into(),
-                params: params.iter().map(|(k, v)| ((*k).to_owned(), *v)).collect(),
-            }),
-            replan: None,
-        }
+    let create = |frame: Option<pb::MapFrame>, policy: &str, params: &[(&str, f64)]| pb::CreateMissionRequest {
+        name: "m".into(),
+        frame,
+        policy: Some(pb::PolicySpec {
+            name: policy.into(),
+            params: params.iter().map(|(k, v)| ((*k).to_owned(), *v)).collect(),
+        }),
+        replan: None,
     };
     let cases = [
-        (
-            "zero width",
-            create(Some(common::frame(0, 10)), "burgard", &[]),
-            "frame.width is 0",
-        ),
-        (
-            "zero height",
-            create(Some(common::frame(10, 0)), "burgard", &[]),
-            "frame.height is 0",
-        ),
-        (
-            "absurd size",
-            create(Some(common::frame(20_000, 20_000)), "burgard", &[]),
-            "at most 25000000",
-        ),
-        (
-            "absurd side",
-            create(Some(common::frame(1_000_000, 1)), "burgard", &[]),
-            "frame.width",
-        ),
-        (
-            "no frame",
-            create(None, "burgard", &[]),
-            "frame is required",
-        ),
+        ("zero width", create(Some(common::frame(0, 10)), "burgard", &[]), "frame.width is 0"),
+        ("zero height", create(Some(common::frame(10, 0)), "burgard", &[]), "frame.height is 0"),
+        ("absurd size", create(Some(common::frame(20_000, 20_000)), "burgard", &[]), "at most 25000000"),
+        ("absurd side", create(Some(common::frame(1_000_000, 1)), "burgard", &[]), "frame.width"),
+        ("no frame", create(None, "burgard", &[]), "frame is required"),
         (
             "unknown policy",
             create(Some(common::frame(10, 10)), "teleport", &[]),
-            "valid policies: nearest, burgard",
+            "valid policies: nearest, greedy, burgard, burgard-joint, simmons, minpos, segmentation, hungarian, colares",
         ),
         (
             "parameter out of range",
             create(Some(common::frame(10, 10)), "burgard", &[("beta", -1.0)]),
             "must lie in [0, 1000]",
         ),
-        (
-            "unknown parameter",
-            create(Some(common::frame(10, 10)), "burgard", &[("gamma", 1.0)]),
-            "its parameters:",
-        ),
+        ("unknown parameter", create(Some(common::frame(10, 10)), "burgard", &[("gamma", 1.0)]), "its parameters:"),
     ];
     for (what, request, message) in cases {
         let status = missions.create_mission(request).await.unwrap_err();
         assert_eq!(status.code(), Code::InvalidArgument, "{what}: {status:?}");
-        assert!(
-            status.message().contains(message),
-            "{what}: {:?} lacks {message:?}",
-            status.message()
-        );
+        assert!(status.message().contains(message), "{what}: {:?} lacks {message:?}", status.message());
     }
     let mut frame = common::frame(10, 10);
     frame.resolution = f64::NAN;
-    let status = missions
-        .create_mission(create(Some(frame), "burgard", &[]))
-        .await
-        .unwrap_err();
+    let status = missions.create_mission(create(Some(frame), "burgard", &[])).await.unwrap_err();
     assert_eq!(status.code(), Code::InvalidArgument);
-    let listed = missions
-        .list_missions(pb::ListMissionsRequest {})
-        .await
-        .unwrap()
-        .into_inner();
+    let listed = missions.list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner();
     assert!(listed.missions.is_empty(), "a refused mission was created");
 
-    let status = missions
-        .get_mission(pb::GetMissionRequest { mission_id: 7 })
-        .await
-        .unwrap_err();
+    let status = missions.get_mission(pb::GetMissionRequest { mission_id: 7 }).await.unwrap_err();
     assert_eq!(status.code(), Code::NotFound);
     assert!(status.message().contains("mission 7 does not exist"));
 
@@ -306,69 +193,28 @@ async fn bad_missions_and_robots_are_refused() {
             speed_mps: 1.0,
             footprint_radius_m: 0.1,
         }),
-        pose: Some(pb::Pose {
-            x,
-            y: 1.0,
-            theta: 0.0,
-        }),
+        pose: Some(pb::Pose { x, y: 1.0, theta: 0.0 }),
     };
     for (what, request, code) in [
-        (
-            "unknown mission",
-            register(99, "a", 2.0, 1.0),
-            Code::NotFound,
-        ),
-        (
-            "no name",
-            register(mission.id, " ", 2.0, 1.0),
-            Code::InvalidArgument,
-        ),
-        (
-            "zero sensor range",
-            register(mission.id, "a", 0.0, 1.0),
-            Code::InvalidArgument,
-        ),
-        (
-            "NaN sensor range",
-            register(mission.id, "a", f64::NAN, 1.0),
-            Code::InvalidArgument,
-        ),
-        (
-            "pose off the map",
-            register(mission.id, "a", 2.0, -3.0),
-            Code::InvalidArgument,
-        ),
+        ("unknown mission", register(99, "a", 2.0, 1.0), Code::NotFound),
+        ("no name", register(mission.id, " ", 2.0, 1.0), Code::InvalidArgument),
+        ("zero sensor range", register(mission.id, "a", 0.0, 1.0), Code::InvalidArgument),
+        ("NaN sensor range", register(mission.id, "a", f64::NAN, 1.0), Code::InvalidArgument),
+        ("pose off the map", register(mission.id, "a", 2.0, -3.0), Code::InvalidArgument),
     ] {
         let status = fleet.register_robot(request).await.unwrap_err();
         assert_eq!(status.code(), code, "{what}: {status:?}");
     }
-    let robots = missions
-        .list_robots(pb::ListRobotsRequest {
-            mission_id: mission.id,
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let robots = missions.list_robots(pb::ListRobotsRequest { mission_id: mission.id }).await.unwrap().into_inner();
     assert!(robots.robots.is_empty());
 
     // Registering twice under one name resumes the same robot.
-    let first = fleet
-        .register_robot(register(mission.id, "a", 2.0, 1.0))
-        .await
-        .unwrap()
-        .into_inner();
-    let again = fleet
-        .register_robot(register(mission.id, "a", 3.0, 1.0))
-        .await
-        .unwrap()
-        .into_inner();
+    let first = fleet.register_robot(register(mission.id, "a", 2.0, 1.0)).await.unwrap().into_inner();
+    let again = fleet.register_robot(register(mission.id, "a", 3.0, 1.0)).await.unwrap().into_inner();
     assert!(!first.resumed);
     assert!(again.resumed);
     assert_eq!(first.robot.unwrap().id, again.robot.as_ref().unwrap().id);
-    assert_eq!(
-        again.robot.unwrap().capabilities.unwrap().sensor_range_m,
-        3.0
-    );
+    assert_eq!(again.robot.unwrap().capabilities.unwrap().sensor_range_m, 3.0);
     exec.stop().await;
 }
 
@@ -380,36 +226,18 @@ async fn an_update_is_applied_once_and_replans_push_assignments() {
     let mut fleet = exec.fleet();
     let mission = create_mission(&mut missions, 40, 30, "nearest").await;
     let robot = register(&mut fleet, mission.id, "r1", 0.55, 0.55).await;
-    let mut stream = fleet
-        .watch_assignment(pb::WatchAssignmentRequest { robot_id: robot.id })
-        .await
-        .unwrap()
-        .into_inner();
+    let mut stream =
+        fleet.watch_assignment(pb::WatchAssignmentRequest { robot_id: robot.id }).await.unwrap().into_inner();
     let first = stream.message().await.unwrap().unwrap();
     assert_eq!(first.task_id, 0, "no map, no task");
 
     // The robot sees a free 10×10 room corner around itself; the rest is unknown.
-    let response = fleet
-        .update_map(update(
-            robot.id,
-            1,
-            0.55,
-            0.55,
-            vec![patch(0, 0, 10, 10, 0.05)],
-        ))
-        .await
-        .unwrap()
-        .into_inner();
+    let response =
+        fleet.update_map(update(robot.id, 1, 0.55, 0.55, vec![patch(0, 0, 10, 10, 0.05)])).await.unwrap().into_inner();
     let assignment = response.assignment.unwrap();
-    assert_ne!(
-        assignment.task_id, 0,
-        "a frontier exists: the robot has a task"
-    );
+    assert_ne!(assignment.task_id, 0, "a frontier exists: the robot has a task");
     let target = assignment.target.unwrap();
-    assert!(
-        target.x < 1.01 && target.y < 1.01,
-        "a frontier cell of the room: {target:?}"
-    );
+    assert!(target.x < 1.01 && target.y < 1.01, "a frontier cell of the room: {target:?}");
     let pushed = stream.message().await.unwrap().unwrap();
     assert_eq!(pushed.version, assignment.version);
     assert_eq!(pushed.task_id, assignment.task_id);
@@ -418,11 +246,7 @@ async fn an_update_is_applied_once_and_replans_push_assignments() {
     let arrived = fleet
         .heartbeat(pb::HeartbeatRequest {
             robot_id: robot.id,
-            pose: Some(pb::Pose {
-                x: target.x,
-                y: target.y,
-                theta: 0.0,
-            }),
+            pose: Some(pb::Pose { x: target.x, y: target.y, theta: 0.0 }),
             state: pb::RobotState::Arrived as i32,
             task_id: assignment.task_id,
             reason: String::new(),
@@ -434,36 +258,17 @@ async fn an_update_is_applied_once_and_replans_push_assignments() {
         .unwrap();
     assert!(arrived.version > assignment.version);
     let tasks = missions
-        .list_tasks(pb::ListTasksRequest {
-            mission_id: mission.id,
-            robot_id: robot.id,
-            limit: 0,
-        })
+        .list_tasks(pb::ListTasksRequest { mission_id: mission.id, robot_id: robot.id, limit: 0 })
         .await
         .unwrap()
         .into_inner()
         .tasks;
     let reached = tasks.iter().find(|t| t.id == assignment.task_id).unwrap();
     assert_eq!(reached.state, pb::TaskState::Reached as i32);
-    let causes: Vec<_> = reached
-        .transitions
-        .iter()
-        .map(|t| (t.to, t.actor.as_str()))
-        .collect();
-    assert_eq!(
-        causes,
-        vec![
-            (pb::TaskState::Assigned as i32, "policy"),
-            (pb::TaskState::Reached as i32, "robot")
-        ]
-    );
-    let mission_after = missions
-        .get_mission(pb::GetMissionRequest {
-            mission_id: mission.id,
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let causes: Vec<_> = reached.transitions.iter().map(|t| (t.to, t.actor.as_str())).collect();
+    assert_eq!(causes, vec![(pb::TaskState::Assigned as i32, "policy"), (pb::TaskState::Reached as i32, "robot")]);
+    let mission_after =
+        missions.get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
     assert_eq!(mission_after.map_updates, 1);
     assert!(mission_after.replans >= 2);
     exec.stop().await;
@@ -475,13 +280,8 @@ async fn health_reflection_and_the_policy_list_answer() {
     let exec = TestExecutive::start(&dir.path().join("x.db")).await;
     let mut health = tonic_health::pb::health_client::HealthClient::new(exec.channel());
     for service in ["", "exploration.v1.Missions", "exploration.v1.Fleet"] {
-        let answer = health
-            .check(tonic_health::pb::HealthCheckRequest {
-                service: service.into(),
-            })
-            .await
-            .unwrap()
-            .into_inner();
+        let answer =
+            health.check(tonic_health::pb::HealthCheckRequest { service: service.into() }).await.unwrap().into_inner();
         assert_eq!(
             answer.status,
             tonic_health::pb::health_check_response::ServingStatus::Serving as i32,
@@ -498,31 +298,17 @@ async fn health_reflection_and_the_policy_list_answer() {
         host: String::new(),
         message_request: Some(MessageRequest::ListServices(String::new())),
     };
-    let mut responses = reflection
-        .server_reflection_info(tokio_stream::iter([request]))
-        .await
-        .unwrap()
-        .into_inner();
+    let mut responses = reflection.server_reflection_info(tokio_stream::iter([request])).await.unwrap().into_inner();
     let response = responses.next().await.unwrap().unwrap();
     let Some(MessageResponse::ListServicesResponse(list)) = response.message_response else {
         panic!("unexpected reflection answer {response:?}");
     };
     let names: Vec<_> = list.service.iter().map(|s| s.name.as_str()).collect();
-    for expected in [
-        "exploration.v1.Missions",
-        "exploration.v1.Fleet",
-        "grpc.health.v1.Health",
-    ] {
+    for expected in ["exploration.v1.Missions", "exploration.v1.Fleet", "grpc.health.v1.Health"] {
         assert!(names.contains(&expected), "{names:?} lacks {expected}");
     }
 
-    let policies = exec
-        .missions()
-        .list_policies(pb::ListPoliciesRequest {})
-        .await
-        .unwrap()
-        .into_inner()
-        .policies;
+    let policies = exec.missions().list_policies(pb::ListPoliciesRequest {}).await.unwrap().into_inner().policies;
     let burgard = policies.iter().find(|p| p.name == "burgard").unwrap();
     let beta = burgard.params.iter().find(|p| p.name == "beta").unwrap();
     assert_eq!(beta.default_value, 1.0);

@@ -19,56 +19,31 @@ async fn three_robots_explore_the_depot_and_the_database_keeps_every_transition(
     let report = client_sim::run(&config).await.unwrap();
     assert!(report.completed, "{report:?}");
     assert_eq!(report.coverage, 1.0);
-    assert!(
-        report.t50 <= report.t90 && report.t90 <= report.t100,
-        "{report:?}"
-    );
-    assert_eq!(
-        report.updates_acknowledged, report.map_updates,
-        "an acknowledged update is missing or doubled"
-    );
-    assert_eq!(
-        report.stream_lags, 0,
-        "the assignment stream fell behind the responses"
-    );
-    assert!(
-        report.distance_per_robot.iter().all(|d| *d > 1.0),
-        "{report:?}"
-    );
+    assert!(report.t50 <= report.t90 && report.t90 <= report.t100, "{report:?}");
+    assert_eq!(report.updates_acknowledged, report.map_updates, "an acknowledged update is missing or doubled");
+    assert_eq!(report.stream_lags, 0, "the assignment stream fell behind the responses");
+    assert!(report.distance_per_robot.iter().all(|d| *d > 1.0), "{report:?}");
     exec.stop().await;
 
     // The file alone tells what happened.
-    let pool = sqlx::SqlitePool::connect(&format!("sqlite://{}", db.display()))
+    let pool = sqlx::SqlitePool::connect(&format!("sqlite://{}", db.display())).await.unwrap();
+    let (policy, updates): (String, i64) = sqlx::query_as("SELECT policy, map_updates FROM missions WHERE id = ?1")
+        .bind(report.mission_id as i64)
+        .fetch_one(&pool)
         .await
         .unwrap();
-    let (policy, updates): (String, i64) =
-        sqlx::query_as("SELECT policy, map_updates FROM missions WHERE id = ?1")
-            .bind(report.mission_id as i64)
-            .fetch_one(&pool)
-            .await
-            .unwrap();
     assert_eq!(policy, "burgard");
     assert_eq!(updates as u64, report.map_updates);
     let robots: Vec<(String, i64)> =
-        sqlx::query_as("SELECT name, last_map_seq FROM robots ORDER BY id")
-            .fetch_all(&pool)
-            .await
-            .unwrap();
-    assert_eq!(
-        robots.iter().map(|r| r.0.as_str()).collect::<Vec<_>>(),
-        ["robot-0", "robot-1", "robot-2"]
-    );
-    let logged: i64 =
-        sqlx::query_scalar("SELECT COUNT(DISTINCT robot_id || ':' || seq) FROM map_patches")
-            .fetch_one(&pool)
-            .await
-            .unwrap();
-    assert!(logged > 0 && logged as u64 <= report.map_updates);
-    // Every task starts assigned by the policy and every ended task says how.
-    let tasks = sqlx::query("SELECT id, state FROM tasks")
-        .fetch_all(&pool)
+        sqlx::query_as("SELECT name, last_map_seq FROM robots ORDER BY id").fetch_all(&pool).await.unwrap();
+    assert_eq!(robots.iter().map(|r| r.0.as_str()).collect::<Vec<_>>(), ["robot-0", "robot-1", "robot-2"]);
+    let logged: i64 = sqlx::query_scalar("SELECT COUNT(DISTINCT robot_id || ':' || seq) FROM map_patches")
+        .fetch_one(&pool)
         .await
         .unwrap();
+    assert!(logged > 0 && logged as u64 <= report.map_updates);
+    // Every task starts assigned by the policy and every ended task says how.
+    let tasks = sqlx::query("SELECT id, state FROM tasks").fetch_all(&pool).await.unwrap();
     assert!(tasks.len() >= 3);
     for task in &tasks {
         let id: i64 = task.get("id");
@@ -83,31 +58,16 @@ async fn three_robots_explore_the_depot_and_the_database_keeps_every_transition(
         assert_eq!(transitions[0].1, "assigned");
         assert_eq!(transitions[0].3, "policy");
         let state: String = task.get("state");
-        assert_eq!(
-            transitions.last().unwrap().1,
-            state,
-            "task {id}'s state is its last transition"
-        );
+        assert_eq!(transitions.last().unwrap().1, state, "task {id}'s state is its last transition");
         for pair in transitions.windows(2) {
-            assert_eq!(
-                pair[0].1,
-                pair[1].0.clone().unwrap(),
-                "task {id}: transitions chain"
-            );
-            assert!(
-                !pair[1].2.is_empty(),
-                "task {id}: every transition has a cause"
-            );
+            assert_eq!(pair[0].1, pair[1].0.clone().unwrap(), "task {id}: transitions chain");
+            assert!(!pair[1].2.is_empty(), "task {id}: every transition has a cause");
         }
     }
-    let reached: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM tasks WHERE state = 'reached'")
-        .fetch_one(&pool)
-        .await
-        .unwrap();
-    let preempted: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM tasks WHERE state = 'preempted'")
-        .fetch_one(&pool)
-        .await
-        .unwrap();
+    let reached: i64 =
+        sqlx::query_scalar("SELECT COUNT(*) FROM tasks WHERE state = 'reached'").fetch_one(&pool).await.unwrap();
+    let preempted: i64 =
+        sqlx::query_scalar("SELECT COUNT(*) FROM tasks WHERE state = 'preempted'").fetch_one(&pool).await.unwrap();
     assert!(reached + preempted > 0);
 }
 
@@ -122,23 +82,7 @@ async fn the_same_seed_gives_the_same_run() {
     let (a, b) = (run().await, run().await);
     assert!(a.completed, "{a:?}");
     assert_eq!(
-        (
-            a.steps,
-            a.t50,
-            a.t90,
-            a.t100,
-            a.replans,
-            &a.distance_per_robot,
-            &a.trajectories
-        ),
-        (
-            b.steps,
-            b.t50,
-            b.t90,
-            b.t100,
-            b.replans,
-            &b.distance_per_robot,
-            &b.trajectories
-        )
+        (a.steps, a.t50, a.t90, a.t100, a.replans, &a.distance_per_robot, &a.trajectories),
+        (b.steps, b.t50, b.t90, b.t100, b.replans, &b.distance_per_robot, &b.trajectories)
     );
 }

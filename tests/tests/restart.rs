@@ -17,119 +17,54 @@ async fn a_restart_on_the_same_file_restores_map_robots_and_tasks() {
     let mission = create_mission(&mut missions, 60, 40, "burgard").await;
     let a = register(&mut fleet, mission.id, "a", 0.55, 0.55).await;
     let b = register(&mut fleet, mission.id, "b", 2.05, 0.55).await;
-    fleet
-        .update_map(update(a.id, 1, 0.55, 0.55, vec![patch(0, 0, 20, 10, 0.05)]))
-        .await
-        .unwrap();
+    fleet.update_map(update(a.id, 1, 0.55, 0.55, vec![patch(0, 0, 20, 10, 0.05)])).await.unwrap();
     let mut wall = patch(20, 0, 1, 10, 0.95);
     wall.values[3] = 0.9;
     let last_b = fleet
-        .update_map(update(
-            b.id,
-            1,
-            2.05,
-            0.55,
-            vec![patch(15, 0, 5, 12, 0.05), wall],
-        ))
+        .update_map(update(b.id, 1, 2.05, 0.55, vec![patch(15, 0, 5, 12, 0.05), wall]))
         .await
         .unwrap()
         .into_inner()
         .assignment
         .unwrap();
-    let last_a = fleet
-        .get_assignment(pb::GetAssignmentRequest { robot_id: a.id })
-        .await
-        .unwrap()
-        .into_inner();
+    let last_a = fleet.get_assignment(pb::GetAssignmentRequest { robot_id: a.id }).await.unwrap().into_inner();
     assert_ne!(last_a.task_id, 0);
     assert_ne!(last_b.task_id, 0);
-    let map_before = missions
-        .get_map(pb::GetMapRequest {
-            mission_id: mission.id,
-        })
-        .await
-        .unwrap()
-        .into_inner();
-    let mission_before = missions
-        .get_mission(pb::GetMissionRequest {
-            mission_id: mission.id,
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let map_before = missions.get_map(pb::GetMapRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    let mission_before =
+        missions.get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
 
     // A robot is watching when the executive stops: the stop must not hang on it.
-    let mut stream = fleet
-        .watch_assignment(pb::WatchAssignmentRequest { robot_id: a.id })
-        .await
-        .unwrap()
-        .into_inner();
-    assert_eq!(
-        stream.message().await.unwrap().unwrap().version,
-        last_a.version
-    );
+    let mut stream = fleet.watch_assignment(pb::WatchAssignmentRequest { robot_id: a.id }).await.unwrap().into_inner();
+    assert_eq!(stream.message().await.unwrap().unwrap().version, last_a.version);
     exec.stop().await;
-    assert!(
-        !matches!(stream.message().await, Ok(Some(_))),
-        "the stream ended with the executive"
-    );
+    assert!(!matches!(stream.message().await, Ok(Some(_))), "the stream ended with the executive");
 
     let exec = TestExecutive::start(&db).await;
     let mut missions = exec.missions();
     let mut fleet = exec.fleet();
-    let mission_after = missions
-        .get_mission(pb::GetMissionRequest {
-            mission_id: mission.id,
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let mission_after =
+        missions.get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
     assert_eq!(mission_after.map_updates, mission_before.map_updates);
     assert_eq!(mission_after.known_cells, mission_before.known_cells);
     assert_eq!(mission_after.frontier_cells, mission_before.frontier_cells);
     assert_eq!(mission_after.replans, mission_before.replans);
-    let map_after = missions
-        .get_map(pb::GetMapRequest {
-            mission_id: mission.id,
-        })
-        .await
-        .unwrap()
-        .into_inner();
-    assert_eq!(
-        map_after.cells, map_before.cells,
-        "the fused map is rebuilt cell for cell"
-    );
+    let map_after = missions.get_map(pb::GetMapRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_eq!(map_after.cells, map_before.cells, "the fused map is rebuilt cell for cell");
     // Assignments are where they were, with their versions.
-    let a_after = fleet
-        .get_assignment(pb::GetAssignmentRequest { robot_id: a.id })
-        .await
-        .unwrap()
-        .into_inner();
-    assert_eq!(
-        (a_after.task_id, a_after.version),
-        (last_a.task_id, last_a.version)
-    );
+    let a_after = fleet.get_assignment(pb::GetAssignmentRequest { robot_id: a.id }).await.unwrap().into_inner();
+    assert_eq!((a_after.task_id, a_after.version), (last_a.task_id, last_a.version));
     // Sequence numbers survive: the old one is recognised, the next one applies.
-    let repeat = fleet
-        .update_map(update(b.id, 1, 2.05, 0.55, vec![patch(15, 0, 5, 12, 0.05)]))
-        .await
-        .unwrap_err();
+    let repeat = fleet.update_map(update(b.id, 1, 2.05, 0.55, vec![patch(15, 0, 5, 12, 0.05)])).await.unwrap_err();
     assert_eq!(repeat.code(), Code::AlreadyExists);
-    let next = fleet
-        .update_map(update(b.id, 2, 2.05, 0.55, vec![patch(30, 10, 2, 2, 0.05)]))
-        .await
-        .unwrap()
-        .into_inner();
+    let next =
+        fleet.update_map(update(b.id, 2, 2.05, 0.55, vec![patch(30, 10, 2, 2, 0.05)])).await.unwrap().into_inner();
     assert_eq!(next.applied_seq, 2);
     // A second mission gets the next identity; task identities keep growing.
     let other = create_mission(&mut missions, 10, 10, "nearest").await;
     assert_eq!(other.id, mission.id + 1);
     let tasks = missions
-        .list_tasks(pb::ListTasksRequest {
-            mission_id: mission.id,
-            robot_id: 0,
-            limit: 0,
-        })
+        .list_tasks(pb::ListTasksRequest { mission_id: mission.id, robot_id: 0, limit: 0 })
         .await
         .unwrap()
         .into_inner()
@@ -138,10 +73,6 @@ async fn a_restart_on_the_same_file_restores_map_robots_and_tasks() {
     let before = ids.len();
     ids.sort_unstable();
     ids.dedup();
-    assert_eq!(
-        ids.len(),
-        before,
-        "task identities are unique across the restart"
-    );
+    assert_eq!(ids.len(), before, "task identities are unique across the restart");
     exec.stop().await;
 }

@@ -14,9 +14,9 @@
 //! casting). V is measured in metres × P(occ), so β does not depend on the
 //! grid resolution (at the paper's 15 cm cells, V in cells is V/0.15).
 
-use super::{Plan, PlanningInput, Policy, Target, robot_cost_maps};
+use super::{Plan, PlanningInput, Policy, Target, current_target, robot_cost_maps};
 use crate::cost::{CostCache, TraversalKind};
-use crate::grid::{Cell, CellClass};
+use crate::grid::{Cell, CellClass, OccupancyGrid};
 use crate::visibility::line_of_sight;
 
 pub(super) const NAME: &str = "burgard";
@@ -31,47 +31,57 @@ pub struct Burgard {
     pub occ_max: f64,
     /// σ of the Gaussian the map is smoothed with (§II-A), metres.
     pub smoothing_sigma_m: f64,
+    /// Hysteresis: a robot's current target scores this much more.
+    pub switch_margin: f64,
 }
 
 /// P(d) of Eq. 2: the probability that a sensor of range `max_range` covers
 /// a cell at distance `d` from where it stands.
 pub fn coverage_probability(d: f64, max_range: f64) -> f64 {
-    if d < max_range && max_range > 0.0 {
-        1.0 - d / max_range
-    } else {
-        0.0
-    }
+    if d < max_range && max_range > 0.0 { 1.0 - d / max_range } else { 0.0 }
 }
 
-impl Policy for Burgard {
-    fn name(&self) -> &'static str {
-        NAME
-    }
+/// P(‖a − b‖) for a sensor of range `max_range_m` at `a`, zero when an
+/// obstacle lies between (Eqs. 1–2 with ray casting, §II-B).
+pub(super) fn covered(grid: &OccupancyGrid, a: Cell, b: Cell, max_range_m: f64) -> f64 {
+    let resolution = grid.frame().resolution;
+    let d = a.distance(b) * resolution;
+    let p = coverage_probability(d, max_range_m);
+    let opaque = |c: Cell| grid.class_or_wall(c) == CellClass::Occupied;
+    if p > 0.0 && line_of_sight(a, b, opaque) { p } else { 0.0 }
+}
 
-    fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
-        let frontier = input.frontier_cells();
-        let grid = input.grid;
-        let resolution = grid.frame().resolution;
-        // Line 2: V_t^i for every robot and frontier cell.
+impl Burgard {
+    /// Line 2 of Algorithm 1: V_t^i for every robot i and frontier cell t.
+    pub(super) fn cost_values(
+        &self,
+        input: &PlanningInput<'_>,
+        costs: &mut CostCache<'_>,
+        frontier: &[Cell],
+    ) -> Vec<Vec<Option<f64>>> {
         let kinds: Vec<TraversalKind> = input
             .robots
             .iter()
-            .map(|r| {
-                TraversalKind::burgard(
-                    self.occ_max,
-                    self.smoothing_sigma_m,
-                    r.capabilities.footprint_radius_m,
-                )
-            })
+            .map(|r| TraversalKind::burgard(self.occ_max, self.smoothing_sigma_m, r.capabilities.footprint_radius_m))
             .collect();
-        let values: Vec<Vec<Option<f64>>> = robot_cost_maps(input, costs, &kinds)
+        robot_cost_maps(input, costs, &kinds)
             .iter()
             .map(|map| frontier.iter().map(|&t| map.cost(t)).collect())
-            .collect();
+            .collect()
+    }
+
+    /// Lines 3–7 of Algorithm 1 on precomputed values.
+    pub(super) fn assign(
+        &self,
+        input: &PlanningInput<'_>,
+        frontier: &[Cell],
+        values: &[Vec<Option<f64>>],
+    ) -> Vec<Option<Target>> {
+        let grid = input.grid;
+        let resolution = grid.frame().resolution;
         // Line 3: all utilities start at 1.
         let mut utility = vec![1.0f64; frontier.len()];
         let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
-        let opaque = |c: Cell| grid.class_or_wall(c) == CellClass::Occupied;
         // Line 4: while a robot is left without a target.
         loop {
             let mut best: Option<(f64, usize, usize)> = None;
@@ -79,9 +89,11 @@ impl Policy for Burgard {
                 if targets[i].is_some() {
                     continue;
                 }
+                let current = current_target(&input.robots[i]);
                 for (t, v) in row.iter().enumerate() {
                     let Some(v) = v else { continue };
-                    let score = utility[t] - self.beta * v;
+                    let keep = if Some(frontier[t]) == current { self.switch_margin } else { 0.0 };
+                    let score = utility[t] - self.beta * v + keep;
                     // Strictly greater: ties go to the lower robot, then the lower cell.
                     if best.is_none_or(|(b, _, _)| score > b) {
                         best = Some((score, i, t));
@@ -101,18 +113,25 @@ impl Policy for Burgard {
             let max_range = input.robots[i].capabilities.sensor_range_m;
             let range_cells = max_range / resolution;
             let range_cells_sq = (range_cells * range_cells).ceil() as i64;
-            for (u, &other) in utility.iter_mut().zip(&frontier) {
-                if chosen.distance_squared(other) > range_cells_sq {
-                    continue;
-                }
-                let d = chosen.distance(other) * resolution;
-                let p = coverage_probability(d, max_range);
-                if p > 0.0 && line_of_sight(chosen, other, opaque) {
-                    *u -= p;
+            for (u, &other) in utility.iter_mut().zip(frontier) {
+                if chosen.distance_squared(other) <= range_cells_sq {
+                    *u -= covered(grid, chosen, other, max_range);
                 }
             }
         }
-        Plan { targets }
+        targets
+    }
+}
+
+impl Policy for Burgard {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
+        let frontier = input.frontier_cells();
+        let values = self.cost_values(input, costs, &frontier);
+        Plan::of(self.assign(input, &frontier, &values))
     }
 }
 
@@ -124,11 +143,7 @@ mod tests {
     use crate::policy::testing::{plan_targets, robot};
 
     fn burgard() -> Burgard {
-        Burgard {
-            beta: 1.0,
-            occ_max: 0.6,
-            smoothing_sigma_m: 0.0,
-        }
+        Burgard { beta: 1.0, occ_max: 0.6, smoothing_sigma_m: 0.0, switch_margin: 0.0 }
     }
 
     #[test]
@@ -150,15 +165,9 @@ mod tests {
             "?............?", //
             "##############", //
         ]);
-        let robots = [
-            robot(0, Cell::new(3, 1), 5.0),
-            robot(1, Cell::new(4, 1), 5.0),
-        ];
-        let uncoordinated = plan_targets(&Nearest, &grid, &robots);
-        assert_eq!(
-            uncoordinated,
-            vec![Some(Cell::new(1, 1)), Some(Cell::new(1, 1))]
-        );
+        let robots = [robot(0, Cell::new(3, 1), 5.0), robot(1, Cell::new(4, 1), 5.0)];
+        let uncoordinated = plan_targets(&Nearest::default(), &grid, &robots);
+        assert_eq!(uncoordinated, vec![Some(Cell::new(1, 1)), Some(Cell::new(1, 1))]);
         let coordinated = plan_targets(&burgard(), &grid, &robots);
         assert_eq!(coordinated[0], Some(Cell::new(1, 1)), "{coordinated:?}");
         assert_eq!(coordinated[1], Some(Cell::new(12, 1)), "{coordinated:?}");
@@ -177,15 +186,14 @@ mod tests {
             let grid = grid_from_picture(picture);
             let frontier = FrontierMap::detect(&grid);
             let clusters = clusters(&frontier, 1);
-            let robots = [
-                robot(0, Cell::new(1, 0), 3.0),
-                robot(1, Cell::new(3, 0), 3.0),
-            ];
+            let robots = [robot(0, Cell::new(1, 0), 3.0), robot(1, Cell::new(3, 0), 3.0)];
             let input = PlanningInput {
                 grid: &grid,
                 clusters: &clusters,
                 robots: &robots,
                 threads: 1,
+                bids: &[Vec::new(), Vec::new()],
+                seed: 0,
             };
             let plan = burgard().plan(&input, &mut CostCache::new(&grid));
             let first = plan.targets[0].unwrap();
@@ -201,10 +209,7 @@ mod tests {
             "#.#.#", //
             "#...#", //
         ]);
-        assert!(
-            (walled - 1.0).abs() < 1e-9,
-            "behind a wall: undiscounted, got {walled}"
-        );
+        assert!((walled - 1.0).abs() < 1e-9, "behind a wall: undiscounted, got {walled}");
         let open = second_robot_utility(&[
             "#?#?#", //
             "#...#", //
@@ -212,9 +217,6 @@ mod tests {
             "#...#", //
         ]);
         // In the open, (3,2) is 2 m from (1,2): U = 1 − (1 − 2/3) = 2/3.
-        assert!(
-            (open - 2.0 / 3.0).abs() < 1e-9,
-            "in the open: discounted, got {open}"
-        );
+        assert!((open - 2.0 / 3.0).abs() < 1e-9, "in the open: discounted, got {open}");
     }
 }

@@ -13,10 +13,26 @@ use crate::frontier::FrontierCluster;
 use crate::grid::{Cell, CellRect, OccupancyGrid};
 
 mod burgard;
+mod burgard_joint;
+mod colares;
+mod greedy;
+mod hungarian;
+mod minpos;
 mod nearest;
+mod registry;
+mod segmentation;
+mod simmons;
 
-pub use burgard::Burgard;
+pub use burgard::{Burgard, coverage_probability};
+pub use burgard_joint::BurgardJoint;
+pub use colares::{Colares, distance_factor, information_potential};
+pub use greedy::Greedy;
+pub use hungarian::Hungarian;
+pub use minpos::MinPos;
 pub use nearest::Nearest;
+pub use registry::{ParamSpec, PolicyConfig, PolicyDescriptor, PolicyError, catalogue};
+pub use segmentation::SegmentationPolicy;
+pub use simmons::{Simmons, compute_bids};
 
 /// A robot's identity, as the executive numbers them.
 pub type RobotId = u64;
@@ -69,15 +85,30 @@ pub struct PlanningInput<'a> {
     pub robots: &'a [RobotView],
     /// Threads the policy may use for cost maps.
     pub threads: usize,
+    /// Each robot's latest bids (Simmons et al. 2000, §4.1), in the order of
+    /// `robots`; an empty list where a robot sent none.
+    pub bids: &'a [Vec<Bid>],
+    /// Seed of the policy's random choices (randomized search).
+    pub seed: u64,
+}
+
+/// A robot's estimate for one candidate target (Simmons et al. 2000, §4.1).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bid {
+    /// The candidate frontier cell.
+    pub target: Cell,
+    /// Path cost from the robot to it, metres.
+    pub path_cost_m: f64,
+    /// Expected information gain: unknown cells within sensor range reached by flood fill.
+    pub information_gain: f64,
+    /// Bounding rectangle of that information-gain region.
+    pub gain_region: CellRect,
 }
 
 impl PlanningInput<'_> {
     /// Every frontier cell of every cluster, in cluster order.
     pub fn frontier_cells(&self) -> Vec<Cell> {
-        self.clusters
-            .iter()
-            .flat_map(|c| c.cells.iter().copied())
-            .collect()
+        self.clusters.iter().flat_map(|c| c.cells.iter().copied()).collect()
     }
 }
 
@@ -95,12 +126,67 @@ pub fn robot_cost_maps(
     for (kind, sources) in &by_kind {
         costs.cost_maps(*kind, sources, input.threads);
     }
-    input
+    input.robots.iter().zip(kinds).map(|(robot, kind)| costs.cost_map(*kind, robot.cell)).collect()
+}
+
+/// What reaching one frontier cluster costs a robot.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClusterCost {
+    /// The cell to go to: the cluster's cell cheapest to reach, or the
+    /// robot's current target when it lies in the cluster.
+    pub cell: Cell,
+    /// The path cost to that cell.
+    pub cost: f64,
+    /// The cost the policy compares: `cost`, less the switch margin for the
+    /// robot's current target (hysteresis).
+    pub score: f64,
+}
+
+/// Per cluster, what reaching it costs on `map`; `None` for clusters the map
+/// cannot reach. A cluster holding `current`, the robot's current target,
+/// keeps that target and scores `margin` less, so that the robot switches
+/// only for a frontier cheaper by more than the margin.
+pub fn cluster_costs(
+    map: &crate::cost::CostMap,
+    clusters: &[FrontierCluster],
+    current: Option<Cell>,
+    margin: f64,
+) -> Vec<Option<ClusterCost>> {
+    clusters
+        .iter()
+        .map(|cluster| {
+            let kept =
+                current.filter(|c| cluster.cells.contains(c)).and_then(|cell| map.cost(cell).map(|cost| (cell, cost)));
+            if let Some((cell, cost)) = kept {
+                return Some(ClusterCost { cell, cost, score: cost - margin });
+            }
+            cluster
+                .cells
+                .iter()
+                .filter_map(|&c| map.cost(c).map(|cost| (c, cost)))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(cell, cost)| ClusterCost { cell, cost, score: cost })
+        })
+        .collect()
+}
+
+/// The robot's current target cell, if it has one.
+pub fn current_target(robot: &RobotView) -> Option<Cell> {
+    robot.current.map(|c| c.target)
+}
+
+/// Free-space cost maps for every robot (wavefronts over known free cells,
+/// obstacles inflated by each robot's footprint).
+pub fn free_space_cost_maps(
+    input: &PlanningInput<'_>,
+    costs: &mut CostCache<'_>,
+) -> Vec<std::sync::Arc<crate::cost::CostMap>> {
+    let kinds: Vec<crate::cost::TraversalKind> = input
         .robots
         .iter()
-        .zip(kinds)
-        .map(|(robot, kind)| costs.cost_map(*kind, robot.cell))
-        .collect()
+        .map(|r| crate::cost::TraversalKind::free_space(r.capabilities.footprint_radius_m))
+        .collect();
+    robot_cost_maps(input, costs, &kinds)
 }
 
 /// A target chosen for one robot.
@@ -122,6 +208,15 @@ pub struct Target {
 pub struct Plan {
     /// One entry per robot.
     pub targets: Vec<Option<Target>>,
+    /// The segmentation the plan was made on (the `segmentation` policy).
+    pub segmentation: Option<crate::segment::Segmentation>,
+}
+
+impl Plan {
+    /// A plan of targets only.
+    pub fn of(targets: Vec<Option<Target>>) -> Self {
+        Self { targets, segmentation: None }
+    }
 }
 
 /// A coordination policy.
@@ -131,211 +226,6 @@ pub trait Policy: Send + Sync + std::fmt::Debug {
 
     /// Chooses targets for all robots.
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan;
-}
-
-/// One tunable parameter of a policy.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ParamSpec {
-    /// Its name.
-    pub name: &'static str,
-    /// What it does.
-    pub description: &'static str,
-    /// Its value when not given.
-    pub default: f64,
-    /// Smallest allowed value.
-    pub min: f64,
-    /// Largest allowed value.
-    pub max: f64,
-}
-
-/// A policy on offer.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PolicyDescriptor {
-    /// The name it is selected by.
-    pub name: &'static str,
-    /// One line on what it does and where it comes from.
-    pub description: &'static str,
-    /// Its parameters.
-    pub params: &'static [ParamSpec],
-}
-
-/// Parameter shared by all frontier-based policies.
-const MIN_FRONTIER_SIZE: ParamSpec = ParamSpec {
-    name: "min_frontier_size",
-    description: "frontier clusters with fewer cells are ignored",
-    default: 1.0,
-    min: 1.0,
-    max: 10_000.0,
-};
-
-/// Every policy the executive offers.
-pub fn catalogue() -> &'static [PolicyDescriptor] {
-    &[
-        PolicyDescriptor {
-            name: nearest::NAME,
-            description: "each robot heads for its closest frontier cell, without arbitration (Yamauchi 1998; the uncoordinated baseline of Burgard et al. 2005)",
-            params: &[MIN_FRONTIER_SIZE],
-        },
-        PolicyDescriptor {
-            name: burgard::NAME,
-            description: "Burgard et al. 2005, Algorithm 1: greedy on utility minus beta times value-iteration cost; utilities of frontier cells visible from chosen targets drop by P(d) = 1 - d/max_range",
-            params: &[
-                MIN_FRONTIER_SIZE,
-                ParamSpec {
-                    name: "beta",
-                    description: "weight of travel cost against utility (Algorithm 1, line 5); the paper uses 1",
-                    default: 1.0,
-                    min: 0.0,
-                    max: 1000.0,
-                },
-                ParamSpec {
-                    name: "occ_max",
-                    description: "cells with a higher occupancy probability are not traversable (§II-A)",
-                    default: 0.6,
-                    min: 0.0,
-                    max: 1.0,
-                },
-                ParamSpec {
-                    name: "smoothing_sigma_m",
-                    description: "standard deviation of the Gaussian the map is smoothed with before costing (§II-A), metres",
-                    default: 0.1,
-                    min: 0.0,
-                    max: 5.0,
-                },
-            ],
-        },
-    ]
-}
-
-/// Why a policy configuration was refused.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum PolicyError {
-    /// No policy of that name.
-    #[error("unknown policy {name:?}; valid policies: {}", valid.join(", "))]
-    UnknownPolicy {
-        /// The name given.
-        name: String,
-        /// The names on offer.
-        valid: Vec<&'static str>,
-    },
-    /// The policy has no parameter of that name.
-    #[error("policy {policy:?} has no parameter {name:?}; its parameters: {}", valid.join(", "))]
-    UnknownParameter {
-        /// The policy.
-        policy: &'static str,
-        /// The name given.
-        name: String,
-        /// Its parameters.
-        valid: Vec<&'static str>,
-    },
-    /// A value outside the parameter's range.
-    #[error("parameter {name:?} of policy {policy:?} is {value}; it must lie in [{min}, {max}]")]
-    OutOfRange {
-        /// The policy.
-        policy: &'static str,
-        /// The parameter.
-        name: &'static str,
-        /// The value given.
-        value: f64,
-        /// Lower bound.
-        min: f64,
-        /// Upper bound.
-        max: f64,
-    },
-}
-
-/// A validated policy choice with every parameter filled in.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PolicyConfig {
-    descriptor: &'static PolicyDescriptor,
-    params: BTreeMap<&'static str, f64>,
-}
-
-impl PolicyConfig {
-    /// Validates `name` and `overrides` against the catalogue; parameters not
-    /// overridden take their defaults.
-    pub fn new(name: &str, overrides: &BTreeMap<String, f64>) -> Result<Self, PolicyError> {
-        let descriptor = catalogue().iter().find(|d| d.name == name).ok_or_else(|| {
-            PolicyError::UnknownPolicy {
-                name: name.to_owned(),
-                valid: catalogue().iter().map(|d| d.name).collect(),
-            }
-        })?;
-        let mut params: BTreeMap<&'static str, f64> = descriptor
-            .params
-            .iter()
-            .map(|p| (p.name, p.default))
-            .collect();
-        for (key, &value) in overrides {
-            let spec = descriptor
-                .params
-                .iter()
-                .find(|p| p.name == key)
-                .ok_or_else(|| PolicyError::UnknownParameter {
-                    policy: descriptor.name,
-                    name: key.clone(),
-                    valid: descriptor.params.iter().map(|p| p.name).collect(),
-                })?;
-            // NaN fails this check too.
-            if !(value >= spec.min && value <= spec.max) {
-                return Err(PolicyError::OutOfRange {
-                    policy: descriptor.name,
-                    name: spec.name,
-                    value,
-                    min: spec.min,
-                    max: spec.max,
-                });
-            }
-            params.insert(spec.name, value);
-        }
-        Ok(Self { descriptor, params })
-    }
-
-    /// The default configuration of a policy.
-    pub fn default_for(name: &str) -> Result<Self, PolicyError> {
-        Self::new(name, &BTreeMap::new())
-    }
-
-    /// The policy's name.
-    pub fn name(&self) -> &'static str {
-        self.descriptor.name
-    }
-
-    /// Every parameter with its value.
-    pub fn params(&self) -> &BTreeMap<&'static str, f64> {
-        &self.params
-    }
-
-    /// A parameter's value.
-    ///
-    /// # Panics
-    /// If the policy has no such parameter (a programming error).
-    pub fn get(&self, name: &str) -> f64 {
-        match self.params.get(name) {
-            Some(v) => *v,
-            None => panic!("policy {} has no parameter {name}", self.name()),
-        }
-    }
-
-    /// The minimum frontier cluster size the policy considers.
-    pub fn min_frontier_size(&self) -> usize {
-        self.params
-            .get(MIN_FRONTIER_SIZE.name)
-            .map_or(1, |v| v.round() as usize)
-    }
-
-    /// Builds the policy.
-    pub fn build(&self) -> Box<dyn Policy> {
-        match self.descriptor.name {
-            nearest::NAME => Box::new(Nearest),
-            burgard::NAME => Box::new(Burgard {
-                beta: self.get("beta"),
-                occ_max: self.get("occ_max"),
-                smoothing_sigma_m: self.get("smoothing_sigma_m"),
-            }),
-            other => unreachable!("catalogued policy {other} has no constructor"),
-        }
-    }
 }
 
 #[cfg(test)]
@@ -359,19 +249,11 @@ pub(crate) mod testing {
     }
 
     /// Runs a policy on a grid and returns each robot's target cell.
-    pub fn plan_targets(
-        policy: &dyn Policy,
-        grid: &OccupancyGrid,
-        robots: &[RobotView],
-    ) -> Vec<Option<Cell>> {
+    pub fn plan_targets(policy: &dyn Policy, grid: &OccupancyGrid, robots: &[RobotView]) -> Vec<Option<Cell>> {
         let frontier = FrontierMap::detect(grid);
         let clusters = clusters(&frontier, 1);
-        let input = PlanningInput {
-            grid,
-            clusters: &clusters,
-            robots,
-            threads: 1,
-        };
+        let bids = vec![Vec::new(); robots.len()];
+        let input = PlanningInput { grid, clusters: &clusters, robots, threads: 1, bids: &bids, seed: 7 };
         let mut cache = CostCache::new(grid);
         let plan = policy.plan(&input, &mut cache);
         assert_eq!(plan.targets.len(), robots.len());
@@ -386,8 +268,19 @@ mod tests {
     #[test]
     fn configs_validate_names_and_ranges() {
         let err = PolicyConfig::default_for("teleport").unwrap_err();
-        assert!(err.to_string().contains("nearest"), "{err}");
-        assert!(err.to_string().contains("burgard"), "{err}");
+        for name in [
+            "nearest",
+            "greedy",
+            "burgard",
+            "burgard-joint",
+            "simmons",
+            "minpos",
+            "segmentation",
+            "hungarian",
+            "colares",
+        ] {
+            assert!(err.to_string().contains(name), "{err}");
+        }
 
         let mut overrides = BTreeMap::new();
         overrides.insert("beta".to_owned(), 2.5);
@@ -397,10 +290,7 @@ mod tests {
 
         overrides.insert("beta".to_owned(), -1.0);
         let err = PolicyConfig::new("burgard", &overrides).unwrap_err();
-        assert!(
-            matches!(err, PolicyError::OutOfRange { name: "beta", .. }),
-            "{err}"
-        );
+        assert!(matches!(err, PolicyError::OutOfRange { name: "beta", .. }), "{err}");
         overrides.insert("beta".to_owned(), f64::NAN);
         assert!(PolicyConfig::new("burgard", &overrides).is_err());
 
@@ -416,12 +306,7 @@ mod tests {
             let config = PolicyConfig::default_for(d.name).unwrap();
             assert_eq!(config.build().name(), d.name);
             for p in d.params {
-                assert!(
-                    p.min <= p.default && p.default <= p.max,
-                    "{}.{}",
-                    d.name,
-                    p.name
-                );
+                assert!(p.min <= p.default && p.default <= p.max, "{}.{}", d.name, p.name);
             }
         }
     }

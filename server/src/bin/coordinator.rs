@@ -49,10 +49,7 @@ async fn main() -> anyhow::Result<()> {
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
     match args.log_format {
         LogFormat::Text => tracing_subscriber::fmt().with_env_filter(filter).init(),
-        LogFormat::Json => tracing_subscriber::fmt()
-            .json()
-            .with_env_filter(filter)
-            .init(),
+        LogFormat::Json => tracing_subscriber::fmt().json().with_env_filter(filter).init(),
     }
     let listener = tokio::net::TcpListener::bind(args.listen)
         .await
@@ -63,15 +60,10 @@ async fn main() -> anyhow::Result<()> {
         DurabilityArg::Normal => Durability::Normal,
     };
     config.executive = ExecutiveSettings {
-        planner_threads: args
-            .planner_threads
-            .unwrap_or(ExecutiveSettings::default().planner_threads)
-            .max(1),
+        planner_threads: args.planner_threads.unwrap_or(ExecutiveSettings::default().planner_threads).max(1),
         ..ExecutiveSettings::default()
     };
-    coordinator::run(listener, shutdown_signal(), config)
-        .await
-        .context("the executive failed")
+    coordinator::run(listener, shutdown_signal(), config).await.context("the executive failed")
 }
 
 /// Resolves on SIGTERM or SIGINT.

@@ -17,13 +17,13 @@ use tokio::time::Instant;
 use exploration::cost::CostCache;
 use exploration::frontier::{FrontierCluster, FrontierMap, clusters};
 use exploration::fusion::MapFusion;
-use exploration::grid::OccupancyGrid;
+use exploration::grid::{CellRect, OccupancyGrid};
 use exploration::math::Point2;
-use exploration::policy::{CurrentTask, Plan, PlanningInput, Policy, RobotView};
+use exploration::policy::{Bid as PolicyBid, CurrentTask, Plan, PlanningInput, Policy, PolicyConfig, RobotView};
 
 use crate::domain::{
-    Actor, AssignedTask, Assignment, Heartbeat, MapUpdate, MissionRecord, MissionState, Pose,
-    RobotId, RobotRecord, RobotState, TaskId, TaskRecord, TaskState, Timestamp, Transition,
+    Actor, AssignedTask, Assignment, Bid, Heartbeat, MapUpdate, MissionEvent, MissionRecord, MissionState, Pose,
+    RobotId, RobotRecord, RobotState, StoredSegmentation, TaskId, TaskRecord, TaskState, Timestamp, Transition,
 };
 use crate::error::Error;
 use crate::store::{Changeset, LoggedPatch, MissionCounters, TaskChange};
@@ -46,11 +46,15 @@ pub(crate) struct Mission {
     robots: BTreeMap<RobotId, RobotSlot>,
     names: HashMap<String, RobotId>,
     open_tasks: BTreeMap<TaskId, TaskRecord>,
+    /// Each robot's latest bids, in cells.
+    bids: BTreeMap<RobotId, Vec<PolicyBid>>,
     last_replan: Instant,
     frontier_at_replan: usize,
     frontier_churn: usize,
     /// Why the next operation must replan, when an event asked for it.
     pending_replan: Option<String>,
+    /// Tasks whose target was found explored at a replanning (not to trigger again).
+    explored_tasks: std::collections::HashSet<TaskId>,
 }
 
 /// Everything needed to run a policy off the mission's lock.
@@ -59,8 +63,10 @@ pub(crate) struct PlanningJob {
     grid: OccupancyGrid,
     clusters: Vec<FrontierCluster>,
     robots: Vec<RobotView>,
+    bids: Vec<Vec<PolicyBid>>,
     policy: Arc<dyn Policy>,
     threads: usize,
+    seed: u64,
 }
 
 impl PlanningJob {
@@ -71,6 +77,8 @@ impl PlanningJob {
             clusters: &self.clusters,
             robots: &self.robots,
             threads: self.threads,
+            bids: &self.bids,
+            seed: self.seed,
         };
         let mut cache = CostCache::new(&self.grid);
         self.policy.plan(&input, &mut cache)
@@ -89,12 +97,9 @@ impl Mission {
         let mut fusion = MapFusion::new(record.spec.frame);
         let mut known_cells = 0;
         for logged in &patches {
-            let change = fusion.apply(logged.robot_id, &logged.patch).map_err(|e| {
-                Error::Internal(format!(
-                    "mission {}: stored patch does not apply: {e}",
-                    record.id
-                ))
-            })?;
+            let change = fusion
+                .apply(logged.robot_id, &logged.patch)
+                .map_err(|e| Error::Internal(format!("mission {}: stored patch does not apply: {e}", record.id)))?;
             known_cells += change.newly_known;
         }
         let frontier = FrontierMap::detect(fusion.grid());
@@ -107,9 +112,11 @@ impl Mission {
             robots: BTreeMap::new(),
             names: HashMap::new(),
             open_tasks: open_tasks.into_iter().map(|t| (t.id, t)).collect(),
+            bids: BTreeMap::new(),
             last_replan: Instant::now(),
             frontier_churn: 0,
             pending_replan: Some("executive restarted".to_owned()),
+            explored_tasks: std::collections::HashSet::new(),
             record,
         };
         for robot in robots {
@@ -151,17 +158,11 @@ impl Mission {
     }
 
     pub(crate) fn robot_by_name(&self, name: &str) -> Option<&RobotRecord> {
-        self.names
-            .get(name)
-            .and_then(|id| self.robots.get(id))
-            .map(|s| &s.record)
+        self.names.get(name).and_then(|id| self.robots.get(id)).map(|s| &s.record)
     }
 
     pub(crate) fn robot(&self, id: RobotId) -> Result<&RobotRecord, Error> {
-        self.robots
-            .get(&id)
-            .map(|s| &s.record)
-            .ok_or_else(|| Error::NotFound(format!("robot {id} does not exist")))
+        self.robots.get(&id).map(|s| &s.record).ok_or_else(|| Error::NotFound(format!("robot {id} does not exist")))
     }
 
     pub(crate) fn robots(&self) -> impl Iterator<Item = &RobotRecord> {
@@ -170,10 +171,7 @@ impl Mission {
 
     /// The target of a robot's current task.
     pub(crate) fn target_of(&self, robot: &RobotRecord) -> Option<Point2> {
-        robot
-            .current_task
-            .and_then(|t| self.open_tasks.get(&t))
-            .map(|t| t.target)
+        robot.current_task.and_then(|t| self.open_tasks.get(&t)).map(|t| t.target)
     }
 
     /// Adds a robot just registered (or restored).
@@ -191,15 +189,13 @@ impl Mission {
     }
 
     fn assignment_for(&self, robot: &RobotRecord) -> Assignment {
-        let task = robot
-            .current_task
-            .and_then(|t| self.open_tasks.get(&t))
-            .map(|t| AssignedTask {
-                id: t.id,
-                target: t.target,
-                utility: t.utility,
-                path_cost: t.path_cost,
-            });
+        let task = robot.current_task.and_then(|t| self.open_tasks.get(&t)).map(|t| AssignedTask {
+            id: t.id,
+            target: t.target,
+            utility: t.utility,
+            path_cost: t.path_cost,
+            gain_region: t.gain_region.map(|r| self.world_rect(r)),
+        });
         Assignment {
             robot_id: robot.id,
             version: robot.assignment_version,
@@ -215,6 +211,64 @@ impl Mission {
             .get(&id)
             .map(|s| s.watch.subscribe())
             .ok_or_else(|| Error::NotFound(format!("robot {id} does not exist")))
+    }
+
+    /// A rectangle of cells as its world corners.
+    fn world_rect(&self, r: CellRect) -> (Point2, Point2) {
+        let frame = &self.record.spec.frame;
+        let corner = |x: i32, y: i32| {
+            Point2::new(
+                frame.origin.x + f64::from(x) * frame.resolution,
+                frame.origin.y + f64::from(y) * frame.resolution,
+            )
+        };
+        (corner(r.x, r.y), corner(r.x_end(), r.y_end()))
+    }
+
+    /// Takes a robot's bids (from the store or a request) into the mission's cells.
+    pub(crate) fn set_bids(&mut self, robot: RobotId, bids: &[Bid]) {
+        let frame = self.record.spec.frame;
+        let converted = bids
+            .iter()
+            .filter_map(|b| {
+                let target = frame.cell_from_world(&b.target)?;
+                let low = frame.cell_from_world_unchecked(&b.gain_region.0);
+                let high = frame.cell_from_world_unchecked(&b.gain_region.1);
+                Some(PolicyBid {
+                    target,
+                    path_cost_m: b.path_cost,
+                    information_gain: b.information_gain,
+                    gain_region: CellRect::spanning(low, high),
+                })
+            })
+            .collect();
+        self.bids.insert(robot, converted);
+        if self.policy.name() == "simmons" {
+            self.pending_replan = Some(format!("robot {robot} submitted bids"));
+        }
+    }
+
+    /// Checks a policy change and describes it.
+    pub(crate) fn prepare_policy(&self, policy: PolicyConfig, actor: &str, reason: &str, now: Timestamp) -> Changeset {
+        let before = self.record.spec.policy.name();
+        let detail = if reason.is_empty() {
+            format!("{before} -> {} {:?}", policy.name(), policy.params())
+        } else {
+            format!("{before} -> {} {:?}: {reason}", policy.name(), policy.params())
+        };
+        Changeset {
+            policy: Some((self.record.id, policy)),
+            events: vec![MissionEvent {
+                id: 0,
+                mission_id: self.record.id,
+                at: now,
+                kind: "policy_changed".to_owned(),
+                detail,
+                actor: actor.to_owned(),
+            }],
+            at: Some(now),
+            ..Changeset::default()
+        }
     }
 
     fn check_pose(&self, pose: &Pose) -> Result<(), Error> {
@@ -289,15 +343,7 @@ impl Mission {
         Ok(Changeset {
             mission: Some(counters),
             robots: vec![next],
-            patches: update
-                .patches
-                .into_iter()
-                .map(|patch| LoggedPatch {
-                    robot_id,
-                    seq: update.seq,
-                    patch,
-                })
-                .collect(),
+            patches: update.patches.into_iter().map(|patch| LoggedPatch { robot_id, seq: update.seq, patch }).collect(),
             at: Some(now),
             ..Changeset::default()
         })
@@ -314,10 +360,7 @@ impl Mission {
         self.check_pose(&heartbeat.pose)?;
         let mut next = Self::moved(robot, heartbeat.pose, now);
         next.state = heartbeat.state;
-        let mut changes = Changeset {
-            at: Some(now),
-            ..Changeset::default()
-        };
+        let mut changes = Changeset { at: Some(now), ..Changeset::default() };
         let current = robot.current_task.filter(|t| heartbeat.task_id == Some(*t));
         if let Some(task) = current.and_then(|t| self.open_tasks.get(&t)) {
             let ended = match heartbeat.state {
@@ -331,21 +374,13 @@ impl Mission {
                     },
                 )),
                 RobotState::Moving if task.state == TaskState::Assigned => {
-                    changes.task_changes.push(transition(
-                        task,
-                        TaskState::Active,
-                        "robot moving",
-                        Actor::Robot,
-                        now,
-                    ));
+                    changes.task_changes.push(transition(task, TaskState::Active, "robot moving", Actor::Robot, now));
                     None
                 }
                 _ => None,
             };
             if let Some((state, cause)) = ended {
-                changes
-                    .task_changes
-                    .push(transition(task, state, &cause, Actor::Robot, now));
+                changes.task_changes.push(transition(task, state, &cause, Actor::Robot, now));
                 next.current_task = None;
                 next.assignment_version += 1;
             }
@@ -384,6 +419,11 @@ impl Mission {
                 task.state = change.state;
                 task.updated_at = change.transition.at;
             }
+        }
+        if let Some((_, policy)) = changes.policy {
+            self.policy = Arc::from(policy.build());
+            self.record.spec.policy = policy;
+            self.pending_replan = Some("policy changed".to_owned());
         }
         if let Some(counters) = changes.mission {
             self.record.state = counters.state;
@@ -425,10 +465,9 @@ impl Mission {
         for slot in self.robots.values() {
             let robot = &slot.record;
             if let Some(target) = self.target_of(robot) {
-                let explored = frame
-                    .cell_from_world(&target)
-                    .is_none_or(|cell| !self.frontier.contains(cell));
-                if explored {
+                let explored = frame.cell_from_world(&target).is_none_or(|cell| !self.frontier.contains(cell));
+                // Once per task: a policy may keep a robot on an explored target.
+                if explored && robot.current_task.is_some_and(|t| !self.explored_tasks.contains(&t)) {
                     return Some(format!("target of robot {} explored", robot.id));
                 }
                 let travelled = robot.distance_m - robot.assigned_distance_m;
@@ -464,40 +503,33 @@ impl Mission {
                     id: r.id,
                     cell: frame.cell_from_world_unchecked(&r.pose.position),
                     capabilities: r.capabilities,
-                    current: self
-                        .target_of(r)
-                        .and_then(|t| frame.cell_from_world(&t))
-                        .map(|target| CurrentTask {
-                            target,
-                            gain_region: None,
-                        }),
+                    current: r.current_task.and_then(|t| self.open_tasks.get(&t)).and_then(|task| {
+                        frame
+                            .cell_from_world(&task.target)
+                            .map(|target| CurrentTask { target, gain_region: task.gain_region })
+                    }),
                 }
             })
             .collect();
+        let bids = self.robots.keys().map(|id| self.bids.get(id).cloned().unwrap_or_default()).collect();
         PlanningJob {
             grid: self.fusion.grid().clone(),
             clusters: clusters(&self.frontier, self.record.spec.policy.min_frontier_size()),
             robots,
+            bids,
             policy: self.policy.clone(),
             threads,
+            // Randomized policies draw from the mission and its replanning count: reproducible.
+            seed: self.record.id.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.record.replans,
         }
     }
 
     /// Describes what a plan changes: tasks that end, tasks that start, robots
     /// whose assignment moves, and the mission's state.
-    pub(crate) fn prepare_plan(
-        &self,
-        plan: &Plan,
-        reason: &str,
-        now: Timestamp,
-        task_ids: &AtomicU64,
-    ) -> Changeset {
+    pub(crate) fn prepare_plan(&self, plan: &Plan, reason: &str, now: Timestamp, task_ids: &AtomicU64) -> Changeset {
         let frame = &self.record.spec.frame;
         let completed = self.known_cells > 0 && self.frontier.is_empty();
-        let mut changes = Changeset {
-            at: Some(now),
-            ..Changeset::default()
-        };
+        let mut changes = Changeset { at: Some(now), ..Changeset::default() };
         let policy = self.record.spec.policy.name();
         for (slot, target) in self.robots.values().zip(&plan.targets) {
             let robot = &slot.record;
@@ -519,17 +551,11 @@ impl Mission {
             }
             if let Some(task) = current {
                 let (state, cause, actor) = if completed {
-                    (
-                        TaskState::Cancelled,
-                        "mission complete: no frontier left".to_owned(),
-                        Actor::Executive,
-                    )
+                    (TaskState::Cancelled, "mission complete: no frontier left".to_owned(), Actor::Executive)
                 } else {
                     (TaskState::Preempted, reason.to_owned(), Actor::Policy)
                 };
-                changes
-                    .task_changes
-                    .push(transition(task, state, &cause, actor, now));
+                changes.task_changes.push(transition(task, state, &cause, actor, now));
             }
             next.current_task = None;
             if let Some(t) = target {
@@ -543,6 +569,7 @@ impl Mission {
                     policy: policy.to_owned(),
                     utility: t.utility,
                     path_cost: t.path_cost,
+                    gain_region: t.gain_region,
                     created_at: now,
                     updated_at: now,
                     transitions: vec![Transition {
@@ -560,11 +587,7 @@ impl Mission {
         }
         let mut counters = self.counters();
         counters.replans += 1;
-        counters.state = if completed {
-            MissionState::Completed
-        } else {
-            MissionState::Active
-        };
+        counters.state = if completed { MissionState::Completed } else { MissionState::Active };
         if counters.state != self.record.state {
             // Every robot's assignment carries the mission state: push it.
             for slot in self.robots.values() {
@@ -576,11 +599,23 @@ impl Mission {
             }
         }
         changes.mission = Some(counters);
+        if let Some(segmentation) = &plan.segmentation {
+            changes.segmentation =
+                Some((self.record.id, StoredSegmentation { computed_at: now, segmentation: segmentation.clone() }));
+        }
         changes
     }
 
     /// Resets the replanning triggers after a committed replanning.
     pub(crate) fn mark_replanned(&mut self, now: Instant) {
+        let frame = self.record.spec.frame;
+        let explored: Vec<TaskId> = self
+            .open_tasks
+            .values()
+            .filter(|t| frame.cell_from_world(&t.target).is_none_or(|c| !self.frontier.contains(c)))
+            .map(|t| t.id)
+            .collect();
+        self.explored_tasks = explored.into_iter().collect();
         self.last_replan = now;
         self.frontier_at_replan = self.frontier.len();
         self.frontier_churn = 0;
@@ -588,22 +623,10 @@ impl Mission {
     }
 }
 
-fn transition(
-    task: &TaskRecord,
-    to: TaskState,
-    cause: &str,
-    actor: Actor,
-    at: Timestamp,
-) -> TaskChange {
+fn transition(task: &TaskRecord, to: TaskState, cause: &str, actor: Actor, at: Timestamp) -> TaskChange {
     TaskChange {
         task_id: task.id,
         state: to,
-        transition: Transition {
-            from: Some(task.state),
-            to,
-            at,
-            cause: cause.to_owned(),
-            actor,
-        },
+        transition: Transition { from: Some(task.state), to, at, cause: cause.to_owned(), actor },
     }
 }

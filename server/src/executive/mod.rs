@@ -16,11 +16,12 @@ use exploration::grid::OccupancyGrid;
 use exploration::math::Point2;
 
 use crate::domain::{
-    Assignment, Bid, Heartbeat, MapUpdate, MissionId, MissionRecord, MissionSpec, MissionState,
-    RobotId, RobotRecord, RobotSpec, TaskRecord, Timestamp,
+    Assignment, Bid, Heartbeat, MapUpdate, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState, RobotId,
+    RobotRecord, RobotSpec, StoredSegmentation, TaskRecord, Timestamp,
 };
 use crate::error::Error;
 use crate::store::{Changeset, Store, TaskFilter};
+use exploration::policy::PolicyConfig;
 
 mod mission;
 
@@ -128,13 +129,16 @@ impl Executive {
             for robot in &robots {
                 robot_missions.insert(robot.id, id);
             }
+            let mut bids = Vec::new();
+            for robot in &robots {
+                bids.push((robot.id, store.bids(robot.id).await?));
+            }
             total_cells += record.spec.frame.len() as u64;
-            missions.insert(
-                id,
-                Arc::new(Mutex::new(Mission::restore(
-                    record, robots, patches, open_tasks,
-                )?)),
-            );
+            let mut mission = Mission::restore(record, robots, patches, open_tasks)?;
+            for (robot, robot_bids) in bids {
+                mission.set_bids(robot, &robot_bids);
+            }
+            missions.insert(id, Arc::new(Mutex::new(mission)));
         }
         let next_task_id = store.max_task_id().await?;
         Ok(Self {
@@ -149,26 +153,20 @@ impl Executive {
 
     fn mission_handle(&self, id: MissionId) -> Result<Arc<Mutex<Mission>>, Error> {
         let missions = self.missions.read().unwrap_or_else(|e| e.into_inner());
-        missions.get(&id).cloned().ok_or_else(|| {
-            Error::NotFound(format!(
-                "mission {id} does not exist; ListMissions shows the missions"
-            ))
-        })
+        missions
+            .get(&id)
+            .cloned()
+            .ok_or_else(|| Error::NotFound(format!("mission {id} does not exist; ListMissions shows the missions")))
     }
 
     fn mission_of_robot(&self, robot: RobotId) -> Result<Arc<Mutex<Mission>>, Error> {
         let mission = {
-            let index = self
-                .robot_missions
-                .read()
-                .unwrap_or_else(|e| e.into_inner());
+            let index = self.robot_missions.read().unwrap_or_else(|e| e.into_inner());
             index.get(&robot).copied()
         };
         match mission {
             Some(m) => self.mission_handle(m),
-            None => Err(Error::NotFound(format!(
-                "robot {robot} does not exist; register it with RegisterRobot first"
-            ))),
+            None => Err(Error::NotFound(format!("robot {robot} does not exist; register it with RegisterRobot first"))),
         }
     }
 
@@ -201,19 +199,11 @@ impl Executive {
             )));
         }
         let record = self.store.create_mission(&spec, Timestamp::now()).await?;
-        tracing::info!(
-            mission = record.id,
-            policy = record.spec.policy.name(),
-            cells,
-            "mission created"
-        );
+        tracing::info!(mission = record.id, policy = record.spec.policy.name(), cells, "mission created");
         let mission = Mission::new(record.clone());
         let summary = Self::summary(&mission);
         self.total_cells.fetch_add(cells, Ordering::Relaxed);
-        self.missions
-            .write()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(record.id, Arc::new(Mutex::new(mission)));
+        self.missions.write().unwrap_or_else(|e| e.into_inner()).insert(record.id, Arc::new(Mutex::new(mission)));
         Ok(summary)
     }
 
@@ -226,13 +216,7 @@ impl Executive {
 
     /// Every mission, oldest first.
     pub async fn missions(&self) -> Vec<MissionSummary> {
-        let handles: Vec<_> = self
-            .missions
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .values()
-            .cloned()
-            .collect();
+        let handles: Vec<_> = self.missions.read().unwrap_or_else(|e| e.into_inner()).values().cloned().collect();
         let mut out = Vec::with_capacity(handles.len());
         for handle in handles {
             out.push(Self::summary(&*handle.lock().await));
@@ -241,21 +225,14 @@ impl Executive {
     }
 
     /// Registers a robot, or resumes the robot of that name.
-    pub async fn register_robot(
-        &self,
-        mission_id: MissionId,
-        spec: RobotSpec,
-    ) -> Result<(RobotRecord, bool), Error> {
+    pub async fn register_robot(&self, mission_id: MissionId, spec: RobotSpec) -> Result<(RobotRecord, bool), Error> {
         let handle = self.mission_handle(mission_id)?;
         let mut mission = handle.lock().await;
         if let Some(existing) = mission.robot_by_name(&spec.name) {
             let mut resumed = existing.clone();
             resumed.capabilities = spec.capabilities;
             resumed.last_seen = Timestamp::now();
-            let changes = Changeset {
-                robots: vec![resumed.clone()],
-                ..Changeset::default()
-            };
+            let changes = Changeset { robots: vec![resumed.clone()], ..Changeset::default() };
             self.store.commit(&changes).await?;
             mission.apply(changes);
             tracing::info!(mission = mission_id, robot = resumed.id, name = %resumed.name, "robot resumed");
@@ -267,37 +244,21 @@ impl Executive {
                 mission.robot_count()
             )));
         }
-        if mission
-            .record()
-            .spec
-            .frame
-            .cell_from_world(&spec.pose.position)
-            .is_none()
-        {
+        if mission.record().spec.frame.cell_from_world(&spec.pose.position).is_none() {
             return Err(Error::InvalidArgument(format!(
                 "pose ({:.3}, {:.3}) lies outside the map of mission {mission_id}",
                 spec.pose.position.x, spec.pose.position.y
             )));
         }
-        let record = self
-            .store
-            .create_robot(mission_id, &spec, Timestamp::now())
-            .await?;
+        let record = self.store.create_robot(mission_id, &spec, Timestamp::now()).await?;
         tracing::info!(mission = mission_id, robot = record.id, name = %record.name, "robot registered");
         mission.insert_robot(record.clone());
-        self.robot_missions
-            .write()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(record.id, mission_id);
+        self.robot_missions.write().unwrap_or_else(|e| e.into_inner()).insert(record.id, mission_id);
         Ok((record, false))
     }
 
     /// Applies a robot's report, then replans if it asked for it.
-    pub async fn heartbeat(
-        &self,
-        robot_id: RobotId,
-        heartbeat: Heartbeat,
-    ) -> Result<Assignment, Error> {
+    pub async fn heartbeat(&self, robot_id: RobotId, heartbeat: Heartbeat) -> Result<Assignment, Error> {
         let handle = self.mission_of_robot(robot_id)?;
         let mut mission = handle.lock().await;
         let changes = mission.prepare_heartbeat(robot_id, heartbeat, Timestamp::now())?;
@@ -308,11 +269,7 @@ impl Executive {
     }
 
     /// Applies a robot's map update exactly once, then replans if due.
-    pub async fn update_map(
-        &self,
-        robot_id: RobotId,
-        update: MapUpdate,
-    ) -> Result<MapUpdateOutcome, Error> {
+    pub async fn update_map(&self, robot_id: RobotId, update: MapUpdate) -> Result<MapUpdateOutcome, Error> {
         let handle = self.mission_of_robot(robot_id)?;
         let mut mission = handle.lock().await;
         let seq = update.seq;
@@ -329,19 +286,45 @@ impl Executive {
         })
     }
 
-    /// Replaces a robot's bids.
-    pub async fn submit_bids(
-        &self,
-        robot_id: RobotId,
-        bids: Vec<Bid>,
-    ) -> Result<(usize, Assignment), Error> {
+    /// Replaces a robot's bids; the `simmons` policy replans on them.
+    pub async fn submit_bids(&self, robot_id: RobotId, bids: Vec<Bid>) -> Result<(usize, Assignment), Error> {
         let handle = self.mission_of_robot(robot_id)?;
-        let mission = handle.lock().await;
+        let mut mission = handle.lock().await;
         mission.robot(robot_id)?;
-        self.store
-            .replace_bids(robot_id, &bids, Timestamp::now())
-            .await?;
+        self.store.replace_bids(robot_id, &bids, Timestamp::now()).await?;
+        mission.set_bids(robot_id, &bids);
+        self.replan_if_due(&mut mission).await?;
         Ok((bids.len(), mission.assignment(robot_id)?))
+    }
+
+    /// Changes a running mission's policy; the next replanning uses it.
+    pub async fn set_policy(
+        &self,
+        mission_id: MissionId,
+        policy: PolicyConfig,
+        actor: &str,
+        reason: &str,
+    ) -> Result<MissionSummary, Error> {
+        let handle = self.mission_handle(mission_id)?;
+        let mut mission = handle.lock().await;
+        let changes = mission.prepare_policy(policy, actor, reason, Timestamp::now());
+        self.store.commit(&changes).await?;
+        mission.apply(changes);
+        tracing::info!(mission = mission_id, policy = mission.record().spec.policy.name(), actor, "policy changed");
+        self.replan_if_due(&mut mission).await?;
+        Ok(Self::summary(&mission))
+    }
+
+    /// A mission's events, oldest first.
+    pub async fn events(&self, mission_id: MissionId) -> Result<Vec<MissionEvent>, Error> {
+        self.mission_handle(mission_id)?;
+        Ok(self.store.events(mission_id).await?)
+    }
+
+    /// A mission's latest segmentation, if one was computed.
+    pub async fn segmentation(&self, mission_id: MissionId) -> Result<Option<StoredSegmentation>, Error> {
+        self.mission_handle(mission_id)?;
+        Ok(self.store.segmentation(mission_id).await?)
     }
 
     /// A robot's current assignment.
@@ -366,13 +349,7 @@ impl Executive {
     }
 
     fn robot_summaries(mission: &Mission) -> Vec<RobotSummary> {
-        mission
-            .robots()
-            .map(|r| RobotSummary {
-                record: r.clone(),
-                target: mission.target_of(r),
-            })
-            .collect()
+        mission.robots().map(|r| RobotSummary { record: r.clone(), target: mission.target_of(r) }).collect()
     }
 
     /// Tasks with their transitions, newest first.
@@ -381,10 +358,7 @@ impl Executive {
         if let Some(robot) = filter.robot_id {
             let mission = handle.lock().await;
             mission.robot(robot).map_err(|_| {
-                Error::NotFound(format!(
-                    "robot {robot} does not exist in mission {}",
-                    filter.mission_id
-                ))
+                Error::NotFound(format!("robot {robot} does not exist in mission {}", filter.mission_id))
             })?;
         }
         Ok(self.store.tasks(filter).await?)
@@ -397,12 +371,7 @@ impl Executive {
         let frame = mission.record().spec.frame;
         Ok(MapView {
             grid: mission.grid().clone(),
-            frontier: mission
-                .frontier()
-                .cells()
-                .into_iter()
-                .map(|c| frame.world_from_cell(c))
-                .collect(),
+            frontier: mission.frontier().cells().into_iter().map(|c| frame.world_from_cell(c)).collect(),
             robots: Self::robot_summaries(&mission),
         })
     }

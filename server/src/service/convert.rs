@@ -12,8 +12,8 @@ use exploration::policy::{Capabilities, PolicyConfig, catalogue};
 use exploration_proto::v1 as pb;
 
 use crate::domain::{
-    Actor, Assignment, Bid, Heartbeat, MapUpdate, MissionSpec, MissionState, Pose, ReplanSettings,
-    RobotSpec, RobotState, TaskRecord, TaskState, Timestamp, Transition,
+    Actor, Assignment, Bid, Heartbeat, MapUpdate, MissionEvent, MissionSpec, MissionState, Pose, ReplanSettings,
+    RobotSpec, RobotState, StoredSegmentation, TaskRecord, TaskState, Timestamp, Transition,
 };
 use crate::error::Error;
 use crate::executive::{MissionSummary, RobotSummary};
@@ -34,22 +34,14 @@ fn invalid(message: impl Into<String>) -> Error {
 }
 
 fn finite(value: f64, field: &str) -> Result<f64, Error> {
-    if value.is_finite() {
-        Ok(value)
-    } else {
-        Err(invalid(format!(
-            "{field} is {value}; it must be a finite number"
-        )))
-    }
+    if value.is_finite() { Ok(value) } else { Err(invalid(format!("{field} is {value}; it must be a finite number"))) }
 }
 
 fn in_range(value: f64, field: &str, min: f64, max: f64, unit: &str) -> Result<f64, Error> {
     if value >= min && value <= max {
         Ok(value)
     } else {
-        Err(invalid(format!(
-            "{field} is {value}; it must lie in [{min}, {max}] {unit}"
-        )))
+        Err(invalid(format!("{field} is {value}; it must lie in [{min}, {max}] {unit}")))
     }
 }
 
@@ -57,14 +49,10 @@ fn in_range(value: f64, field: &str, min: f64, max: f64, unit: &str) -> Result<f
 pub fn name(value: String, field: &str) -> Result<String, Error> {
     let trimmed = value.trim();
     if trimmed.is_empty() {
-        return Err(invalid(format!(
-            "{field} is empty; give a name of 1 to {MAX_NAME_CHARS} characters"
-        )));
+        return Err(invalid(format!("{field} is empty; give a name of 1 to {MAX_NAME_CHARS} characters")));
     }
     if trimmed.chars().count() > MAX_NAME_CHARS {
-        return Err(invalid(format!(
-            "{field} is longer than {MAX_NAME_CHARS} characters"
-        )));
+        return Err(invalid(format!("{field} is longer than {MAX_NAME_CHARS} characters")));
     }
     Ok(trimmed.to_owned())
 }
@@ -72,42 +60,28 @@ pub fn name(value: String, field: &str) -> Result<String, Error> {
 /// A point from its proto form.
 pub fn point(p: Option<pb::Point>, field: &str) -> Result<Point2, Error> {
     let p = p.ok_or_else(|| invalid(format!("{field} is required")))?;
-    Ok(Point2::new(
-        finite(p.x, &format!("{field}.x"))?,
-        finite(p.y, &format!("{field}.y"))?,
-    ))
+    Ok(Point2::new(finite(p.x, &format!("{field}.x"))?, finite(p.y, &format!("{field}.y"))?))
 }
 
 /// A pose from its proto form.
 pub fn pose(p: Option<pb::Pose>, field: &str) -> Result<Pose, Error> {
     let p = p.ok_or_else(|| invalid(format!("{field} is required")))?;
     Ok(Pose {
-        position: Point2::new(
-            finite(p.x, &format!("{field}.x"))?,
-            finite(p.y, &format!("{field}.y"))?,
-        ),
+        position: Point2::new(finite(p.x, &format!("{field}.x"))?, finite(p.y, &format!("{field}.y"))?),
         heading: exploration::math::normalize_angle(finite(p.theta, &format!("{field}.theta"))?),
     })
 }
 
 /// A grid frame from its proto form.
 pub fn frame(f: pb::MapFrame) -> Result<GridFrame, Error> {
-    let resolution = in_range(
-        f.resolution,
-        "frame.resolution",
-        0.01,
-        10.0,
-        "metres per cell",
-    )?;
+    let resolution = in_range(f.resolution, "frame.resolution", 0.01, 10.0, "metres per cell")?;
     let origin = match f.origin {
         Some(_) => point(f.origin, "frame.origin")?,
         None => Point2::origin(),
     };
     for (side, value) in [("frame.width", f.width), ("frame.height", f.height)] {
         if value == 0 || value > MAX_GRID_SIDE {
-            return Err(invalid(format!(
-                "{side} is {value} cells; it must lie in [1, {MAX_GRID_SIDE}]"
-            )));
+            return Err(invalid(format!("{side} is {value} cells; it must lie in [1, {MAX_GRID_SIDE}]")));
         }
     }
     let cells = u64::from(f.width) * u64::from(f.height);
@@ -124,10 +98,7 @@ pub fn frame(f: pb::MapFrame) -> Result<GridFrame, Error> {
 pub fn frame_to_proto(f: &GridFrame) -> pb::MapFrame {
     pb::MapFrame {
         resolution: f.resolution,
-        origin: Some(pb::Point {
-            x: f.origin.x,
-            y: f.origin.y,
-        }),
+        origin: Some(pb::Point { x: f.origin.x, y: f.origin.y }),
         width: f.width,
         height: f.height,
     }
@@ -136,11 +107,7 @@ pub fn frame_to_proto(f: &GridFrame) -> pb::MapFrame {
 /// A policy choice; an absent or nameless spec means the default policy.
 pub fn policy(spec: Option<pb::PolicySpec>) -> Result<PolicyConfig, Error> {
     let spec = spec.unwrap_or_default();
-    let name = if spec.name.trim().is_empty() {
-        "burgard".to_owned()
-    } else {
-        spec.name.trim().to_owned()
-    };
+    let name = if spec.name.trim().is_empty() { "burgard".to_owned() } else { spec.name.trim().to_owned() };
     let overrides: BTreeMap<String, f64> = spec.params.into_iter().collect();
     Ok(PolicyConfig::new(&name, &overrides)?)
 }
@@ -149,11 +116,7 @@ pub fn policy(spec: Option<pb::PolicySpec>) -> Result<PolicyConfig, Error> {
 pub fn policy_to_proto(p: &PolicyConfig) -> pb::PolicySpec {
     pb::PolicySpec {
         name: p.name().to_owned(),
-        params: p
-            .params()
-            .iter()
-            .map(|(k, v)| ((*k).to_owned(), *v))
-            .collect(),
+        params: p.params().iter().map(|(k, v)| ((*k).to_owned(), *v)).collect(),
     }
 }
 
@@ -165,13 +128,7 @@ pub fn replan(settings: Option<pb::ReplanSettings>) -> Result<ReplanSettings, Er
     };
     let or_default = |v: f64, d: f64| if v == 0.0 { d } else { v };
     Ok(ReplanSettings {
-        distance_m: in_range(
-            or_default(s.distance_m, defaults.distance_m),
-            "replan.distance_m",
-            0.01,
-            1e6,
-            "metres",
-        )?,
+        distance_m: in_range(or_default(s.distance_m, defaults.distance_m), "replan.distance_m", 0.01, 1e6, "metres")?,
         interval: Duration::from_secs_f64(in_range(
             or_default(s.interval_s, defaults.interval.as_secs_f64()),
             "replan.interval_s",
@@ -191,11 +148,7 @@ pub fn replan(settings: Option<pb::ReplanSettings>) -> Result<ReplanSettings, Er
 
 impl From<&ReplanSettings> for pb::ReplanSettings {
     fn from(s: &ReplanSettings) -> Self {
-        Self {
-            distance_m: s.distance_m,
-            interval_s: s.interval.as_secs_f64(),
-            frontier_change: s.frontier_change,
-        }
+        Self { distance_m: s.distance_m, interval_s: s.interval.as_secs_f64(), frontier_change: s.frontier_change }
     }
 }
 
@@ -214,10 +167,7 @@ impl TryFrom<pb::CreateMissionRequest> for MissionSpec {
 
 fn timestamp(t: Timestamp) -> prost_types::Timestamp {
     let millis = t.millis();
-    prost_types::Timestamp {
-        seconds: millis.div_euclid(1000),
-        nanos: (millis.rem_euclid(1000) * 1_000_000) as i32,
-    }
+    prost_types::Timestamp { seconds: millis.div_euclid(1000), nanos: (millis.rem_euclid(1000) * 1_000_000) as i32 }
 }
 
 fn mission_state(s: MissionState) -> pb::MissionState {
@@ -280,37 +230,19 @@ impl TryFrom<Option<pb::RobotCapabilities>> for CapabilitiesInput {
             if v > 0.0 && v <= max {
                 Ok(v)
             } else {
-                Err(invalid(format!(
-                    "{field} is {v}; it must lie in (0, {max}] {unit}"
-                )))
+                Err(invalid(format!("{field} is {v}; it must lie in (0, {max}] {unit}")))
             }
         };
         Ok(Self(Capabilities {
-            sensor_range_m: positive(
-                c.sensor_range_m,
-                "capabilities.sensor_range_m",
-                100.0,
-                "metres",
-            )?,
+            sensor_range_m: positive(c.sensor_range_m, "capabilities.sensor_range_m", 100.0, "metres")?,
             field_of_view_rad: positive(
                 c.field_of_view_rad,
                 "capabilities.field_of_view_rad",
                 std::f64::consts::TAU,
                 "radians",
             )?,
-            speed_mps: positive(
-                c.speed_mps,
-                "capabilities.speed_mps",
-                100.0,
-                "metres per second",
-            )?,
-            footprint_radius_m: in_range(
-                c.footprint_radius_m,
-                "capabilities.footprint_radius_m",
-                0.0,
-                10.0,
-                "metres",
-            )?,
+            speed_mps: positive(c.speed_mps, "capabilities.speed_mps", 100.0, "metres per second")?,
+            footprint_radius_m: in_range(c.footprint_radius_m, "capabilities.footprint_radius_m", 0.0, 10.0, "metres")?,
         }))
     }
 }
@@ -358,11 +290,7 @@ impl From<&RobotSummary> for pb::Robot {
             name: r.name.clone(),
             capabilities: Some(capabilities(&r.capabilities)),
             state: robot_state(r.state) as i32,
-            pose: Some(pb::Pose {
-                x: r.pose.position.x,
-                y: r.pose.position.y,
-                theta: r.pose.heading,
-            }),
+            pose: Some(pb::Pose { x: r.pose.position.x, y: r.pose.position.y, theta: r.pose.heading }),
             task_id: r.current_task.unwrap_or(0),
             last_map_seq: r.last_map_seq,
             last_seen: Some(timestamp(r.last_seen)),
@@ -390,16 +318,9 @@ impl TryFrom<pb::HeartbeatRequest> for Heartbeat {
         };
         let task_id = (r.task_id != 0).then_some(r.task_id);
         if matches!(state, RobotState::Arrived | RobotState::Failed) && task_id.is_none() {
-            return Err(invalid(
-                "ARRIVED and FAILED must name the task they refer to in task_id",
-            ));
+            return Err(invalid("ARRIVED and FAILED must name the task they refer to in task_id"));
         }
-        Ok(Self {
-            pose: pose(r.pose, "pose")?,
-            state,
-            task_id,
-            reason: r.reason.chars().take(500).collect(),
-        })
+        Ok(Self { pose: pose(r.pose, "pose")?, state, task_id, reason: r.reason.chars().take(500).collect() })
     }
 }
 
@@ -408,17 +329,12 @@ impl TryFrom<pb::MapPatch> for PatchInput {
 
     fn try_from(p: pb::MapPatch) -> Result<Self, Error> {
         let (Ok(x), Ok(y)) = (i32::try_from(p.x), i32::try_from(p.y)) else {
-            return Err(invalid(format!(
-                "patch corner ({}, {}) lies outside any mission grid",
-                p.x, p.y
-            )));
+            return Err(invalid(format!("patch corner ({}, {}) lies outside any mission grid", p.x, p.y)));
         };
         let rect = CellRect::new(x, y, p.width, p.height);
         let unknown: Vec<bool> = p.unknown.iter().map(|&b| b != 0).collect();
         let patch = match pb::CellEncoding::try_from(p.encoding) {
-            Ok(pb::CellEncoding::Probability) => {
-                Patch::from_probabilities(rect, &p.values, &unknown)?
-            }
+            Ok(pb::CellEncoding::Probability) => Patch::from_probabilities(rect, &p.values, &unknown)?,
             Ok(pb::CellEncoding::LogOdds) => Patch::from_log_odds(rect, &p.values, &unknown)?,
             Ok(pb::CellEncoding::Unspecified) | Err(_) => {
                 return Err(invalid(format!(
@@ -449,17 +365,9 @@ impl TryFrom<pb::UpdateMapRequest> for MapUpdate {
             .patches
             .into_iter()
             .enumerate()
-            .map(|(i, p)| {
-                PatchInput::try_from(p)
-                    .map(|p| p.0)
-                    .map_err(|e| invalid(format!("patch {i}: {e}")))
-            })
+            .map(|(i, p)| PatchInput::try_from(p).map(|p| p.0).map_err(|e| invalid(format!("patch {i}: {e}"))))
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(Self {
-            seq: r.seq,
-            pose: pose(r.pose, "pose")?,
-            patches,
-        })
+        Ok(Self { seq: r.seq, pose: pose(r.pose, "pose")?, patches })
     }
 }
 
@@ -474,9 +382,7 @@ pub fn bids(bids: Vec<pb::Bid>) -> Result<Vec<Bid>, Error> {
     bids.into_iter()
         .enumerate()
         .map(|(i, b)| {
-            let region = b
-                .gain_region
-                .ok_or_else(|| invalid(format!("bids[{i}].gain_region is required")))?;
+            let region = b.gain_region.ok_or_else(|| invalid(format!("bids[{i}].gain_region is required")))?;
             let min = Point2::new(
                 finite(region.min_x, &format!("bids[{i}].gain_region.min_x"))?,
                 finite(region.min_y, &format!("bids[{i}].gain_region.min_y"))?,
@@ -490,13 +396,7 @@ pub fn bids(bids: Vec<pb::Bid>) -> Result<Vec<Bid>, Error> {
             }
             Ok(Bid {
                 target: point(b.target, &format!("bids[{i}].target"))?,
-                path_cost: in_range(
-                    b.path_cost,
-                    &format!("bids[{i}].path_cost"),
-                    0.0,
-                    f64::MAX,
-                    "",
-                )?,
+                path_cost: in_range(b.path_cost, &format!("bids[{i}].path_cost"), 0.0, f64::MAX, "")?,
                 information_gain: in_range(
                     b.information_gain,
                     &format!("bids[{i}].information_gain"),
@@ -516,15 +416,73 @@ impl From<&Assignment> for pb::Assignment {
             robot_id: a.robot_id,
             version: a.version,
             task_id: a.task.map_or(0, |t| t.id),
-            target: a.task.map(|t| pb::Point {
-                x: t.target.x,
-                y: t.target.y,
-            }),
+            target: a.task.map(|t| pb::Point { x: t.target.x, y: t.target.y }),
             policy: a.policy.to_owned(),
             utility: a.task.map_or(0.0, |t| t.utility),
             path_cost: a.task.map_or(0.0, |t| t.path_cost),
             mission_state: mission_state(a.mission_state) as i32,
+            gain_region: a.task.and_then(|t| t.gain_region).map(|(low, high)| rect(low, high)),
         }
+    }
+}
+
+fn rect(low: Point2, high: Point2) -> pb::Rect {
+    pb::Rect { min_x: low.x, min_y: low.y, max_x: high.x, max_y: high.y }
+}
+
+/// A mission event in proto form.
+pub fn event(e: &MissionEvent) -> pb::MissionEvent {
+    pb::MissionEvent {
+        id: e.id,
+        mission_id: e.mission_id,
+        at: Some(timestamp(e.at)),
+        kind: e.kind.clone(),
+        detail: e.detail.clone(),
+        actor: e.actor.clone(),
+    }
+}
+
+/// A segmentation in proto form; `labels` only when asked for.
+pub fn segmentation(
+    mission_id: u64,
+    frame: &GridFrame,
+    stored: Option<&StoredSegmentation>,
+    include_labels: bool,
+) -> pb::Segmentation {
+    let Some(stored) = stored else {
+        return pb::Segmentation { mission_id, frame: Some(frame_to_proto(frame)), ..pb::Segmentation::default() };
+    };
+    let s = &stored.segmentation;
+    let corner = |x: i32, y: i32| {
+        Point2::new(frame.origin.x + f64::from(x) * frame.resolution, frame.origin.y + f64::from(y) * frame.resolution)
+    };
+    pb::Segmentation {
+        mission_id,
+        frame: Some(frame_to_proto(frame)),
+        computed_at: Some(timestamp(stored.computed_at)),
+        segments: s
+            .segments
+            .iter()
+            .map(|seg| pb::SegmentInfo {
+                id: seg.id,
+                cells: seg.cells as u64,
+                area_m2: seg.cells as f64 * frame.resolution * frame.resolution,
+                bounds: Some(rect(corner(seg.bounds.x, seg.bounds.y), corner(seg.bounds.x_end(), seg.bounds.y_end()))),
+                frontier_cells: seg.frontier.len() as u64,
+            })
+            .collect(),
+        critical_points: s
+            .critical_points
+            .iter()
+            .map(|p| {
+                let at = frame.world_from_cell(p.cell);
+                pb::CriticalPoint {
+                    position: Some(pb::Point { x: at.x, y: at.y }),
+                    clearance_m: p.clearance * frame.resolution,
+                }
+            })
+            .collect(),
+        labels: if include_labels { s.labels.iter().flat_map(|l| l.to_le_bytes()).collect() } else { Vec::new() },
     }
 }
 
@@ -563,10 +521,7 @@ impl From<&TaskRecord> for pb::Task {
             id: t.id,
             mission_id: t.mission_id,
             robot_id: t.robot_id,
-            target: Some(pb::Point {
-                x: t.target.x,
-                y: t.target.y,
-            }),
+            target: Some(pb::Point { x: t.target.x, y: t.target.y }),
             state: task_state(t.state) as i32,
             policy: t.policy.clone(),
             utility: t.utility,
@@ -583,12 +538,7 @@ mod tests {
     use super::*;
 
     fn pb_frame(resolution: f64, width: u32, height: u32) -> pb::MapFrame {
-        pb::MapFrame {
-            resolution,
-            origin: Some(pb::Point { x: 1.0, y: 2.0 }),
-            width,
-            height,
-        }
+        pb::MapFrame { resolution, origin: Some(pb::Point { x: 1.0, y: 2.0 }), width, height }
     }
 
     #[test]
@@ -607,10 +557,7 @@ mod tests {
             assert!(matches!(err, Error::InvalidArgument(_)), "{bad:?}: {err}");
         }
         let mut nan_origin = pb_frame(0.05, 10, 10);
-        nan_origin.origin = Some(pb::Point {
-            x: f64::NAN,
-            y: 0.0,
-        });
+        nan_origin.origin = Some(pb::Point { x: f64::NAN, y: 0.0 });
         assert!(frame(nan_origin).is_err());
     }
 
@@ -626,17 +573,13 @@ mod tests {
             unknown: vec![],
         };
         assert!(PatchInput::try_from(patch(pb::CellEncoding::Probability, vec![0.1, 0.9])).is_ok());
-        let err =
-            PatchInput::try_from(patch(pb::CellEncoding::Unspecified, vec![0.1, 0.9])).unwrap_err();
+        let err = PatchInput::try_from(patch(pb::CellEncoding::Unspecified, vec![0.1, 0.9])).unwrap_err();
         assert!(err.to_string().contains("PROBABILITY"), "{err}");
-        let err =
-            PatchInput::try_from(patch(pb::CellEncoding::Probability, vec![0.1])).unwrap_err();
+        let err = PatchInput::try_from(patch(pb::CellEncoding::Probability, vec![0.1])).unwrap_err();
         assert!(err.to_string().contains("carries 1 values"), "{err}");
-        let err = PatchInput::try_from(patch(pb::CellEncoding::Probability, vec![0.1, f32::NAN]))
-            .unwrap_err();
+        let err = PatchInput::try_from(patch(pb::CellEncoding::Probability, vec![0.1, f32::NAN])).unwrap_err();
         assert!(err.to_string().contains("not a finite number"), "{err}");
-        let err = PatchInput::try_from(patch(pb::CellEncoding::Probability, vec![0.1, -0.5]))
-            .unwrap_err();
+        let err = PatchInput::try_from(patch(pb::CellEncoding::Probability, vec![0.1, -0.5])).unwrap_err();
         assert!(err.to_string().contains("[0, 1]"), "{err}");
         let mut far = patch(pb::CellEncoding::LogOdds, vec![0.1, 0.2]);
         far.x = u32::MAX;
@@ -653,19 +596,7 @@ mod tests {
             reason: String::new(),
         };
         assert!(Heartbeat::try_from(request.clone()).is_err());
-        assert!(
-            Heartbeat::try_from(pb::HeartbeatRequest {
-                task_id: 3,
-                ..request.clone()
-            })
-            .is_ok()
-        );
-        assert!(
-            Heartbeat::try_from(pb::HeartbeatRequest {
-                state: 42,
-                ..request
-            })
-            .is_err()
-        );
+        assert!(Heartbeat::try_from(pb::HeartbeatRequest { task_id: 3, ..request.clone() }).is_ok());
+        assert!(Heartbeat::try_from(pb::HeartbeatRequest { state: 42, ..request }).is_err());
     }
 }

@@ -32,21 +32,12 @@ pub struct ExplorationService {
 impl ExplorationService {
     /// Serves `executive`; streams end when `shutdown` is cancelled.
     pub fn new(executive: Arc<Executive>, shutdown: CancellationToken) -> Self {
-        Self {
-            executive,
-            shutdown,
-        }
+        Self { executive, shutdown }
     }
 }
 
 fn required_id(id: u64, field: &str) -> Result<u64, Error> {
-    if id == 0 {
-        Err(Error::InvalidArgument(format!(
-            "{field} is required (identities start at 1)"
-        )))
-    } else {
-        Ok(id)
-    }
+    if id == 0 { Err(Error::InvalidArgument(format!("{field} is required (identities start at 1)"))) } else { Ok(id) }
 }
 
 #[tonic::async_trait]
@@ -62,10 +53,7 @@ impl Missions for ExplorationService {
     }
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
-    async fn get_mission(
-        &self,
-        request: Request<pb::GetMissionRequest>,
-    ) -> Result<Response<pb::Mission>, Status> {
+    async fn get_mission(&self, request: Request<pb::GetMissionRequest>) -> Result<Response<pb::Mission>, Status> {
         let id = required_id(request.into_inner().mission_id, "mission_id")?;
         let mission = self.executive.mission(id).await?;
         Ok(Response::new((&mission).into()))
@@ -77,9 +65,7 @@ impl Missions for ExplorationService {
         _request: Request<pb::ListMissionsRequest>,
     ) -> Result<Response<pb::ListMissionsResponse>, Status> {
         let missions = self.executive.missions().await;
-        Ok(Response::new(pb::ListMissionsResponse {
-            missions: missions.iter().map(Into::into).collect(),
-        }))
+        Ok(Response::new(pb::ListMissionsResponse { missions: missions.iter().map(Into::into).collect() }))
     }
 
     #[tracing::instrument(skip_all)]
@@ -97,9 +83,7 @@ impl Missions for ExplorationService {
     ) -> Result<Response<pb::ListRobotsResponse>, Status> {
         let id = required_id(request.into_inner().mission_id, "mission_id")?;
         let robots = self.executive.robots(id).await?;
-        Ok(Response::new(pb::ListRobotsResponse {
-            robots: robots.iter().map(Into::into).collect(),
-        }))
+        Ok(Response::new(pb::ListRobotsResponse { robots: robots.iter().map(Into::into).collect() }))
     }
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id, robot = request.get_ref().robot_id))]
@@ -111,42 +95,57 @@ impl Missions for ExplorationService {
         let filter = TaskFilter {
             mission_id: required_id(r.mission_id, "mission_id")?,
             robot_id: (r.robot_id != 0).then_some(r.robot_id),
-            limit: if r.limit == 0 {
-                1000
-            } else {
-                r.limit.min(100_000)
-            },
+            limit: if r.limit == 0 { 1000 } else { r.limit.min(100_000) },
         };
         let tasks = self.executive.tasks(filter).await?;
-        Ok(Response::new(pb::ListTasksResponse {
-            tasks: tasks.iter().map(Into::into).collect(),
-        }))
+        Ok(Response::new(pb::ListTasksResponse { tasks: tasks.iter().map(Into::into).collect() }))
     }
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
-    async fn get_map(
-        &self,
-        request: Request<pb::GetMapRequest>,
-    ) -> Result<Response<pb::MapSnapshot>, Status> {
+    async fn get_map(&self, request: Request<pb::GetMapRequest>) -> Result<Response<pb::MapSnapshot>, Status> {
         let id = required_id(request.into_inner().mission_id, "mission_id")?;
         let map = self.executive.map(id).await?;
         let frame = *map.grid.frame();
         Ok(Response::new(pb::MapSnapshot {
             mission_id: id,
             frame: Some(convert::frame_to_proto(&frame)),
-            cells: map
-                .grid
-                .cells()
-                .iter()
-                .map(|&v| if v == UNKNOWN { 255 } else { v })
-                .collect(),
-            frontier: map
-                .frontier
-                .iter()
-                .map(|p| pb::Point { x: p.x, y: p.y })
-                .collect(),
+            cells: map.grid.cells().iter().map(|&v| if v == UNKNOWN { 255 } else { v }).collect(),
+            frontier: map.frontier.iter().map(|p| pb::Point { x: p.x, y: p.y }).collect(),
             robots: map.robots.iter().map(|r: &RobotSummary| r.into()).collect(),
         }))
+    }
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
+    async fn set_policy(&self, request: Request<pb::SetPolicyRequest>) -> Result<Response<pb::Mission>, Status> {
+        let r = request.into_inner();
+        let id = required_id(r.mission_id, "mission_id")?;
+        let policy =
+            convert::policy(Some(r.policy.ok_or_else(|| Error::InvalidArgument("policy is required".into()))?))?;
+        let actor = if r.actor.trim().is_empty() { "operator".to_owned() } else { r.actor.trim().to_owned() };
+        let mission = self.executive.set_policy(id, policy, &actor, r.reason.trim()).await?;
+        Ok(Response::new((&mission).into()))
+    }
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
+    async fn list_events(
+        &self,
+        request: Request<pb::ListEventsRequest>,
+    ) -> Result<Response<pb::ListEventsResponse>, Status> {
+        let id = required_id(request.into_inner().mission_id, "mission_id")?;
+        let events = self.executive.events(id).await?;
+        Ok(Response::new(pb::ListEventsResponse { events: events.iter().map(convert::event).collect() }))
+    }
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
+    async fn get_segmentation(
+        &self,
+        request: Request<pb::GetSegmentationRequest>,
+    ) -> Result<Response<pb::Segmentation>, Status> {
+        let r = request.into_inner();
+        let id = required_id(r.mission_id, "mission_id")?;
+        let frame = self.executive.mission(id).await?.record.spec.frame;
+        let stored = self.executive.segmentation(id).await?;
+        Ok(Response::new(convert::segmentation(id, &frame, stored.as_ref(), r.include_labels)))
     }
 }
 
@@ -163,14 +162,8 @@ impl Fleet for ExplorationService {
         let mission_id = required_id(r.mission_id, "mission_id")?;
         let spec = RobotSpec::try_from(r)?;
         let (record, resumed) = self.executive.register_robot(mission_id, spec).await?;
-        let summary = RobotSummary {
-            record,
-            target: None,
-        };
-        Ok(Response::new(pb::RegisterRobotResponse {
-            robot: Some((&summary).into()),
-            resumed,
-        }))
+        let summary = RobotSummary { record, target: None };
+        Ok(Response::new(pb::RegisterRobotResponse { robot: Some((&summary).into()), resumed }))
     }
 
     #[tracing::instrument(skip_all, fields(robot = request.get_ref().robot_id, state = request.get_ref().state))]
@@ -182,9 +175,7 @@ impl Fleet for ExplorationService {
         let robot = required_id(r.robot_id, "robot_id")?;
         let heartbeat = Heartbeat::try_from(r)?;
         let assignment = self.executive.heartbeat(robot, heartbeat).await?;
-        Ok(Response::new(pb::HeartbeatResponse {
-            assignment: Some((&assignment).into()),
-        }))
+        Ok(Response::new(pb::HeartbeatResponse { assignment: Some((&assignment).into()) }))
     }
 
     #[tracing::instrument(skip_all, fields(robot = request.get_ref().robot_id, seq = request.get_ref().seq))]
@@ -213,10 +204,7 @@ impl Fleet for ExplorationService {
         let robot = required_id(r.robot_id, "robot_id")?;
         let bids = convert::bids(r.bids)?;
         let (accepted, assignment) = self.executive.submit_bids(robot, bids).await?;
-        Ok(Response::new(pb::SubmitBidsResponse {
-            accepted: accepted as u32,
-            assignment: Some((&assignment).into()),
-        }))
+        Ok(Response::new(pb::SubmitBidsResponse { accepted: accepted as u32, assignment: Some((&assignment).into()) }))
     }
 
     #[tracing::instrument(skip_all, fields(robot = request.get_ref().robot_id))]
@@ -241,9 +229,7 @@ impl Fleet for ExplorationService {
         let shutdown = self.shutdown.clone().cancelled_owned();
         // The stream yields the current assignment, then each change, and ends
         // at shutdown so that a graceful stop is not held up by watchers.
-        let stream = WatchStream::new(receiver)
-            .map(|a| Ok(pb::Assignment::from(&a)))
-            .take_until(shutdown);
+        let stream = WatchStream::new(receiver).map(|a| Ok(pb::Assignment::from(&a))).take_until(shutdown);
         Ok(Response::new(Box::pin(stream)))
     }
 }

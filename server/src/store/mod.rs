@@ -8,10 +8,11 @@
 use async_trait::async_trait;
 
 use crate::domain::{
-    Bid, MissionId, MissionRecord, MissionSpec, MissionState, RobotId, RobotRecord, RobotSpec,
-    TaskId, TaskRecord, TaskState, Timestamp, Transition,
+    Bid, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState, RobotId, RobotRecord, RobotSpec,
+    StoredSegmentation, TaskId, TaskRecord, TaskState, Timestamp, Transition,
 };
 use exploration::fusion::Patch;
+use exploration::policy::PolicyConfig;
 
 pub mod sqlite;
 
@@ -79,6 +80,12 @@ pub struct Changeset {
     pub task_changes: Vec<TaskChange>,
     /// Map patches to append to the log.
     pub patches: Vec<LoggedPatch>,
+    /// The mission's new policy, when it changed.
+    pub policy: Option<(MissionId, PolicyConfig)>,
+    /// Mission events to record.
+    pub events: Vec<MissionEvent>,
+    /// The mission's new segmentation.
+    pub segmentation: Option<(MissionId, StoredSegmentation)>,
     /// When.
     pub at: Option<Timestamp>,
 }
@@ -91,6 +98,9 @@ impl Changeset {
             && self.new_tasks.is_empty()
             && self.task_changes.is_empty()
             && self.patches.is_empty()
+            && self.policy.is_none()
+            && self.events.is_empty()
+            && self.segmentation.is_none()
     }
 }
 
@@ -109,11 +119,7 @@ pub struct TaskFilter {
 #[async_trait]
 pub trait Store: Send + Sync + std::fmt::Debug {
     /// Creates a mission and returns it with its new identity.
-    async fn create_mission(
-        &self,
-        spec: &MissionSpec,
-        now: Timestamp,
-    ) -> Result<MissionRecord, StoreError>;
+    async fn create_mission(&self, spec: &MissionSpec, now: Timestamp) -> Result<MissionRecord, StoreError>;
 
     /// Every mission, oldest first.
     async fn missions(&self) -> Result<Vec<MissionRecord>, StoreError>;
@@ -142,15 +148,16 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     async fn max_task_id(&self) -> Result<TaskId, StoreError>;
 
     /// Replaces a robot's bids.
-    async fn replace_bids(
-        &self,
-        robot_id: RobotId,
-        bids: &[Bid],
-        now: Timestamp,
-    ) -> Result<(), StoreError>;
+    async fn replace_bids(&self, robot_id: RobotId, bids: &[Bid], now: Timestamp) -> Result<(), StoreError>;
 
     /// A robot's latest bids.
     async fn bids(&self, robot_id: RobotId) -> Result<Vec<Bid>, StoreError>;
+
+    /// A mission's events, oldest first.
+    async fn events(&self, mission_id: MissionId) -> Result<Vec<MissionEvent>, StoreError>;
+
+    /// A mission's latest segmentation, if one was computed.
+    async fn segmentation(&self, mission_id: MissionId) -> Result<Option<StoredSegmentation>, StoreError>;
 
     /// Writes a changeset in one transaction.
     async fn commit(&self, changes: &Changeset) -> Result<(), StoreError>;

@@ -7,20 +7,21 @@ use std::time::Duration;
 
 use async_trait::async_trait;
 use sqlx::sqlite::{
-    SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteRow,
-    SqliteSynchronous,
+    SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteRow, SqliteSynchronous,
 };
 use sqlx::{Row, Sqlite, Transaction};
 
 use super::{Changeset, LoggedPatch, Store, StoreError, TaskFilter};
 use crate::domain::{
-    Actor, Bid, MissionId, MissionRecord, MissionSpec, MissionState, Pose, ReplanSettings, RobotId,
-    RobotRecord, RobotSpec, RobotState, TaskId, TaskRecord, TaskState, Timestamp, Transition,
+    Actor, Bid, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState, Pose, ReplanSettings, RobotId,
+    RobotRecord, RobotSpec, RobotState, StoredSegmentation, TaskId, TaskRecord, TaskState, Timestamp, Transition,
 };
 use exploration::fusion::Patch;
+use exploration::grid::Cell;
 use exploration::grid::{CellRect, GridFrame};
 use exploration::math::Point2;
 use exploration::policy::{Capabilities, PolicyConfig};
+use exploration::segment::{CriticalPoint, Segment, Segmentation};
 
 static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
 
@@ -54,10 +55,7 @@ impl SqliteStore {
             })
             .foreign_keys(true)
             .busy_timeout(Duration::from_secs(10));
-        let pool = SqlitePoolOptions::new()
-            .max_connections(4)
-            .connect_with(options)
-            .await?;
+        let pool = SqlitePoolOptions::new().max_connections(4).connect_with(options).await?;
         MIGRATOR.run(&pool).await?;
         Ok(Self { pool })
     }
@@ -76,10 +74,9 @@ fn mission_from_row(row: &SqliteRow) -> Result<MissionRecord, StoreError> {
     let id: i64 = row.try_get("id")?;
     let policy: String = row.try_get("policy")?;
     let params_json: String = row.try_get("policy_params")?;
-    let params: BTreeMap<String, f64> = serde_json::from_str(&params_json)
-        .map_err(|e| corrupt(format!("mission {id}: policy parameters: {e}")))?;
-    let policy =
-        PolicyConfig::new(&policy, &params).map_err(|e| corrupt(format!("mission {id}: {e}")))?;
+    let params: BTreeMap<String, f64> =
+        serde_json::from_str(&params_json).map_err(|e| corrupt(format!("mission {id}: policy parameters: {e}")))?;
+    let policy = PolicyConfig::new(&policy, &params).map_err(|e| corrupt(format!("mission {id}: {e}")))?;
     let state: String = row.try_get("state")?;
     Ok(MissionRecord {
         id: id as MissionId,
@@ -98,8 +95,7 @@ fn mission_from_row(row: &SqliteRow) -> Result<MissionRecord, StoreError> {
                 frontier_change: row.try_get("replan_frontier_change")?,
             },
         },
-        state: MissionState::parse(&state)
-            .ok_or_else(|| corrupt(format!("mission {id}: state {state:?}")))?,
+        state: MissionState::parse(&state).ok_or_else(|| corrupt(format!("mission {id}: state {state:?}")))?,
         replans: row.try_get::<i64, _>("replans")? as u64,
         map_updates: row.try_get::<i64, _>("map_updates")? as u64,
         created_at: Timestamp(row.try_get("created_at")?),
@@ -119,8 +115,7 @@ fn robot_from_row(row: &SqliteRow) -> Result<RobotRecord, StoreError> {
             speed_mps: row.try_get("speed_mps")?,
             footprint_radius_m: row.try_get("footprint_radius_m")?,
         },
-        state: RobotState::parse(&state)
-            .ok_or_else(|| corrupt(format!("robot {id}: state {state:?}")))?,
+        state: RobotState::parse(&state).ok_or_else(|| corrupt(format!("robot {id}: state {state:?}")))?,
         pose: Pose {
             position: Point2::new(row.try_get("pose_x")?, row.try_get("pose_y")?),
             heading: row.try_get("pose_theta")?,
@@ -129,9 +124,7 @@ fn robot_from_row(row: &SqliteRow) -> Result<RobotRecord, StoreError> {
         distance_m: row.try_get("distance_m")?,
         assignment_version: row.try_get::<i64, _>("assignment_version")? as u64,
         assigned_distance_m: row.try_get("assigned_distance_m")?,
-        current_task: row
-            .try_get::<Option<i64>, _>("current_task_id")?
-            .map(|t| t as TaskId),
+        current_task: row.try_get::<Option<i64>, _>("current_task_id")?.map(|t| t as TaskId),
         last_seen: Timestamp(row.try_get("last_seen")?),
     })
 }
@@ -144,14 +137,116 @@ fn task_from_row(row: &SqliteRow) -> Result<TaskRecord, StoreError> {
         mission_id: row.try_get::<i64, _>("mission_id")? as MissionId,
         robot_id: row.try_get::<i64, _>("robot_id")? as RobotId,
         target: Point2::new(row.try_get("target_x")?, row.try_get("target_y")?),
-        state: TaskState::parse(&state)
-            .ok_or_else(|| corrupt(format!("task {id}: state {state:?}")))?,
+        state: TaskState::parse(&state).ok_or_else(|| corrupt(format!("task {id}: state {state:?}")))?,
         policy: row.try_get("policy")?,
         utility: row.try_get("utility")?,
         path_cost: row.try_get("path_cost")?,
+        gain_region: match (
+            row.try_get::<Option<i64>, _>("gain_x")?,
+            row.try_get::<Option<i64>, _>("gain_y")?,
+            row.try_get::<Option<i64>, _>("gain_width")?,
+            row.try_get::<Option<i64>, _>("gain_height")?,
+        ) {
+            (Some(x), Some(y), Some(w), Some(h)) => Some(CellRect::new(x as i32, y as i32, w as u32, h as u32)),
+            _ => None,
+        },
         created_at: Timestamp(row.try_get("created_at")?),
         updated_at: Timestamp(row.try_get("updated_at")?),
         transitions: Vec::new(),
+    })
+}
+
+/// Run-length encoding of labels: (label, run) pairs of little-endian u32.
+fn encode_labels(labels: &[u32]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < labels.len() {
+        let label = labels[i];
+        let run = labels[i..].iter().take_while(|&&l| l == label).count();
+        out.extend_from_slice(&label.to_le_bytes());
+        out.extend_from_slice(&(run as u32).to_le_bytes());
+        i += run;
+    }
+    out
+}
+
+fn decode_labels(bytes: &[u8], len: usize) -> Result<Vec<u32>, StoreError> {
+    let mut labels = Vec::with_capacity(len);
+    for pair in bytes.chunks_exact(8) {
+        let label = u32::from_le_bytes([pair[0], pair[1], pair[2], pair[3]]);
+        let run = u32::from_le_bytes([pair[4], pair[5], pair[6], pair[7]]) as usize;
+        labels.extend(std::iter::repeat_n(label, run));
+    }
+    if labels.len() == len {
+        Ok(labels)
+    } else {
+        Err(corrupt(format!("segmentation labels hold {} cells, not {len}", labels.len())))
+    }
+}
+
+fn segments_json(segmentation: &Segmentation) -> String {
+    let segments: Vec<serde_json::Value> = segmentation
+        .segments
+        .iter()
+        .map(|s| {
+            serde_json::json!({
+                "id": s.id,
+                "cells": s.cells,
+                "bounds": [s.bounds.x, s.bounds.y, s.bounds.width, s.bounds.height],
+                "frontier": s.frontier.iter().map(|c| [c.x, c.y]).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    serde_json::Value::Array(segments).to_string()
+}
+
+fn critical_points_json(segmentation: &Segmentation) -> String {
+    let points: Vec<serde_json::Value> =
+        segmentation.critical_points.iter().map(|p| serde_json::json!([p.cell.x, p.cell.y, p.clearance])).collect();
+    serde_json::Value::Array(points).to_string()
+}
+
+fn segmentation_from_row(row: &SqliteRow, frame: GridFrame) -> Result<StoredSegmentation, StoreError> {
+    let bad = |what: &str| corrupt(format!("segmentation: {what}"));
+    let labels = decode_labels(&row.try_get::<Vec<u8>, _>("labels")?, frame.len())?;
+    let segments: serde_json::Value =
+        serde_json::from_str(&row.try_get::<String, _>("segments")?).map_err(|e| bad(&e.to_string()))?;
+    let points: serde_json::Value =
+        serde_json::from_str(&row.try_get::<String, _>("critical_points")?).map_err(|e| bad(&e.to_string()))?;
+    let int = |v: &serde_json::Value| v.as_i64().ok_or_else(|| bad("not an integer"));
+    let segments = segments
+        .as_array()
+        .ok_or_else(|| bad("segments"))?
+        .iter()
+        .map(|s| {
+            let b = s["bounds"].as_array().ok_or_else(|| bad("bounds"))?;
+            Ok(Segment {
+                id: int(&s["id"])? as u32,
+                cells: int(&s["cells"])? as usize,
+                bounds: CellRect::new(int(&b[0])? as i32, int(&b[1])? as i32, int(&b[2])? as u32, int(&b[3])? as u32),
+                frontier: s["frontier"]
+                    .as_array()
+                    .ok_or_else(|| bad("frontier"))?
+                    .iter()
+                    .map(|c| Ok(Cell::new(int(&c[0])? as i32, int(&c[1])? as i32)))
+                    .collect::<Result<_, StoreError>>()?,
+            })
+        })
+        .collect::<Result<Vec<_>, StoreError>>()?;
+    let critical_points = points
+        .as_array()
+        .ok_or_else(|| bad("critical points"))?
+        .iter()
+        .map(|p| {
+            Ok(CriticalPoint {
+                cell: Cell::new(int(&p[0])? as i32, int(&p[1])? as i32),
+                clearance: p[2].as_f64().ok_or_else(|| bad("clearance"))?,
+            })
+        })
+        .collect::<Result<Vec<_>, StoreError>>()?;
+    Ok(StoredSegmentation {
+        computed_at: Timestamp(row.try_get("computed_at")?),
+        segmentation: Segmentation { frame, labels, segments, critical_points },
     })
 }
 
@@ -161,39 +256,26 @@ fn transition_from_row(row: &SqliteRow) -> Result<Transition, StoreError> {
     let actor: String = row.try_get("actor")?;
     Ok(Transition {
         from: match from {
-            Some(s) => Some(
-                TaskState::parse(&s).ok_or_else(|| corrupt(format!("transition from {s:?}")))?,
-            ),
+            Some(s) => Some(TaskState::parse(&s).ok_or_else(|| corrupt(format!("transition from {s:?}")))?),
             None => None,
         },
         to: TaskState::parse(&to).ok_or_else(|| corrupt(format!("transition to {to:?}")))?,
         at: Timestamp(row.try_get("at")?),
         cause: row.try_get("cause")?,
-        actor: Actor::parse(&actor)
-            .ok_or_else(|| corrupt(format!("transition actor {actor:?}")))?,
+        actor: Actor::parse(&actor).ok_or_else(|| corrupt(format!("transition actor {actor:?}")))?,
     })
 }
 
 /// Little-endian f32 per cell, NaN for unknown cells.
 fn encode_cells(patch: &Patch) -> Vec<u8> {
-    patch
-        .log_odds()
-        .iter()
-        .flat_map(|v| v.to_le_bytes())
-        .collect()
+    patch.log_odds().iter().flat_map(|v| v.to_le_bytes()).collect()
 }
 
 fn decode_cells(bytes: &[u8]) -> Vec<f32> {
-    bytes
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect()
+    bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
 }
 
-async fn write_robot(
-    tx: &mut Transaction<'_, Sqlite>,
-    robot: &RobotRecord,
-) -> Result<(), StoreError> {
+async fn write_robot(tx: &mut Transaction<'_, Sqlite>, robot: &RobotRecord) -> Result<(), StoreError> {
     sqlx::query(
         "UPDATE robots SET sensor_range_m = ?1, field_of_view_rad = ?2, speed_mps = ?3, footprint_radius_m = ?4,
                 state = ?5, pose_x = ?6, pose_y = ?7, pose_theta = ?8, last_map_seq = ?9, distance_m = ?10,
@@ -220,11 +302,7 @@ async fn write_robot(
     Ok(())
 }
 
-async fn write_transition(
-    tx: &mut Transaction<'_, Sqlite>,
-    task_id: TaskId,
-    t: &Transition,
-) -> Result<(), StoreError> {
+async fn write_transition(tx: &mut Transaction<'_, Sqlite>, task_id: TaskId, t: &Transition) -> Result<(), StoreError> {
     sqlx::query(
         "INSERT INTO task_transitions (task_id, from_state, to_state, cause, actor, at) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
     )
@@ -241,11 +319,7 @@ async fn write_transition(
 
 #[async_trait]
 impl Store for SqliteStore {
-    async fn create_mission(
-        &self,
-        spec: &MissionSpec,
-        now: Timestamp,
-    ) -> Result<MissionRecord, StoreError> {
+    async fn create_mission(&self, spec: &MissionSpec, now: Timestamp) -> Result<MissionRecord, StoreError> {
         let params: BTreeMap<&str, f64> = spec.policy.params().clone();
         let params = serde_json::to_string(&params).map_err(|e| corrupt(e.to_string()))?;
         let row = sqlx::query(
@@ -319,27 +393,29 @@ impl Store for SqliteStore {
     }
 
     async fn patches(&self, mission_id: MissionId) -> Result<Vec<LoggedPatch>, StoreError> {
-        sqlx::query("SELECT robot_id, seq, x, y, width, height, cells FROM map_patches WHERE mission_id = ?1 ORDER BY id")
-            .bind(mission_id as i64)
-            .fetch_all(&self.pool)
-            .await?
-            .iter()
-            .map(|row| {
-                let rect = CellRect::new(
-                    row.try_get::<i64, _>("x")? as i32,
-                    row.try_get::<i64, _>("y")? as i32,
-                    row.try_get::<i64, _>("width")? as u32,
-                    row.try_get::<i64, _>("height")? as u32,
-                );
-                let cells: Vec<u8> = row.try_get("cells")?;
-                let patch = Patch::from_stored(rect, decode_cells(&cells)).map_err(|e| corrupt(e.to_string()))?;
-                Ok(LoggedPatch {
-                    robot_id: row.try_get::<i64, _>("robot_id")? as RobotId,
-                    seq: row.try_get::<i64, _>("seq")? as u64,
-                    patch,
-                })
+        sqlx::query(
+            "SELECT robot_id, seq, x, y, width, height, cells FROM map_patches WHERE mission_id = ?1 ORDER BY id",
+        )
+        .bind(mission_id as i64)
+        .fetch_all(&self.pool)
+        .await?
+        .iter()
+        .map(|row| {
+            let rect = CellRect::new(
+                row.try_get::<i64, _>("x")? as i32,
+                row.try_get::<i64, _>("y")? as i32,
+                row.try_get::<i64, _>("width")? as u32,
+                row.try_get::<i64, _>("height")? as u32,
+            );
+            let cells: Vec<u8> = row.try_get("cells")?;
+            let patch = Patch::from_stored(rect, decode_cells(&cells)).map_err(|e| corrupt(e.to_string()))?;
+            Ok(LoggedPatch {
+                robot_id: row.try_get::<i64, _>("robot_id")? as RobotId,
+                seq: row.try_get::<i64, _>("seq")? as u64,
+                patch,
             })
-            .collect()
+        })
+        .collect()
     }
 
     async fn open_tasks(&self, mission_id: MissionId) -> Result<Vec<TaskRecord>, StoreError> {
@@ -361,10 +437,7 @@ impl Store for SqliteStore {
         .bind(i64::from(filter.limit))
         .fetch_all(&self.pool)
         .await?;
-        let mut tasks = rows
-            .iter()
-            .map(task_from_row)
-            .collect::<Result<Vec<_>, _>>()?;
+        let mut tasks = rows.iter().map(task_from_row).collect::<Result<Vec<_>, _>>()?;
         if !tasks.is_empty() {
             let transitions = sqlx::query(
                 "SELECT * FROM task_transitions WHERE task_id IN
@@ -380,10 +453,7 @@ impl Store for SqliteStore {
             let mut by_task: BTreeMap<TaskId, Vec<Transition>> = BTreeMap::new();
             for row in &transitions {
                 let task_id = row.try_get::<i64, _>("task_id")? as TaskId;
-                by_task
-                    .entry(task_id)
-                    .or_default()
-                    .push(transition_from_row(row)?);
+                by_task.entry(task_id).or_default().push(transition_from_row(row)?);
             }
             for task in &mut tasks {
                 task.transitions = by_task.remove(&task.id).unwrap_or_default();
@@ -393,23 +463,13 @@ impl Store for SqliteStore {
     }
 
     async fn max_task_id(&self) -> Result<TaskId, StoreError> {
-        let max: Option<i64> = sqlx::query_scalar("SELECT MAX(id) FROM tasks")
-            .fetch_one(&self.pool)
-            .await?;
+        let max: Option<i64> = sqlx::query_scalar("SELECT MAX(id) FROM tasks").fetch_one(&self.pool).await?;
         Ok(max.unwrap_or(0) as TaskId)
     }
 
-    async fn replace_bids(
-        &self,
-        robot_id: RobotId,
-        bids: &[Bid],
-        now: Timestamp,
-    ) -> Result<(), StoreError> {
+    async fn replace_bids(&self, robot_id: RobotId, bids: &[Bid], now: Timestamp) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
-        sqlx::query("DELETE FROM bids WHERE robot_id = ?1")
-            .bind(robot_id as i64)
-            .execute(&mut *tx)
-            .await?;
+        sqlx::query("DELETE FROM bids WHERE robot_id = ?1").bind(robot_id as i64).execute(&mut *tx).await?;
         for (ordinal, bid) in bids.iter().enumerate() {
             sqlx::query(
                 "INSERT INTO bids (robot_id, ordinal, target_x, target_y, path_cost, information_gain,
@@ -454,6 +514,44 @@ impl Store for SqliteStore {
             .collect()
     }
 
+    async fn events(&self, mission_id: MissionId) -> Result<Vec<MissionEvent>, StoreError> {
+        sqlx::query("SELECT * FROM mission_events WHERE mission_id = ?1 ORDER BY id")
+            .bind(mission_id as i64)
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(|row| {
+                Ok(MissionEvent {
+                    id: row.try_get::<i64, _>("id")? as u64,
+                    mission_id: row.try_get::<i64, _>("mission_id")? as MissionId,
+                    at: Timestamp(row.try_get("at")?),
+                    kind: row.try_get("kind")?,
+                    detail: row.try_get("detail")?,
+                    actor: row.try_get("actor")?,
+                })
+            })
+            .collect()
+    }
+
+    async fn segmentation(&self, mission_id: MissionId) -> Result<Option<StoredSegmentation>, StoreError> {
+        let frame = sqlx::query("SELECT resolution, origin_x, origin_y, width, height FROM missions WHERE id = ?1")
+            .bind(mission_id as i64)
+            .fetch_optional(&self.pool)
+            .await?;
+        let Some(frame) = frame else { return Ok(None) };
+        let frame = GridFrame::new(
+            frame.try_get("resolution")?,
+            Point2::new(frame.try_get("origin_x")?, frame.try_get("origin_y")?),
+            frame.try_get::<i64, _>("width")? as u32,
+            frame.try_get::<i64, _>("height")? as u32,
+        );
+        let row = sqlx::query("SELECT * FROM segmentations WHERE mission_id = ?1")
+            .bind(mission_id as i64)
+            .fetch_optional(&self.pool)
+            .await?;
+        row.map(|row| segmentation_from_row(&row, frame)).transpose()
+    }
+
     async fn commit(&self, changes: &Changeset) -> Result<(), StoreError> {
         if changes.is_empty() {
             return Ok(());
@@ -464,8 +562,8 @@ impl Store for SqliteStore {
         for task in &changes.new_tasks {
             sqlx::query(
                 "INSERT INTO tasks (id, mission_id, robot_id, target_x, target_y, state, policy, utility, path_cost,
-                                    created_at, updated_at)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
+                                    created_at, updated_at, gain_x, gain_y, gain_width, gain_height)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
             )
             .bind(task.id as i64)
             .bind(task.mission_id as i64)
@@ -478,6 +576,10 @@ impl Store for SqliteStore {
             .bind(task.path_cost)
             .bind(task.created_at.millis())
             .bind(task.updated_at.millis())
+            .bind(task.gain_region.map(|r| i64::from(r.x)))
+            .bind(task.gain_region.map(|r| i64::from(r.y)))
+            .bind(task.gain_region.map(|r| i64::from(r.width)))
+            .bind(task.gain_region.map(|r| i64::from(r.height)))
             .execute(&mut *tx)
             .await?;
             for t in &task.transitions {
@@ -513,15 +615,51 @@ impl Store for SqliteStore {
             .execute(&mut *tx)
             .await?;
         }
-        if let Some(m) = &changes.mission {
-            sqlx::query("UPDATE missions SET state = ?1, replans = ?2, map_updates = ?3, updated_at = ?4 WHERE id = ?5")
-                .bind(m.state.as_str())
-                .bind(m.replans as i64)
-                .bind(m.map_updates as i64)
-                .bind(now.millis())
-                .bind(m.id as i64)
+        if let Some((mission_id, policy)) = &changes.policy {
+            let params: BTreeMap<&str, f64> = policy.params().clone();
+            sqlx::query("UPDATE missions SET policy = ?1, policy_params = ?2 WHERE id = ?3")
+                .bind(policy.name())
+                .bind(serde_json::to_string(&params).map_err(|e| corrupt(e.to_string()))?)
+                .bind(*mission_id as i64)
                 .execute(&mut *tx)
                 .await?;
+        }
+        for event in &changes.events {
+            sqlx::query("INSERT INTO mission_events (mission_id, at, kind, detail, actor) VALUES (?1, ?2, ?3, ?4, ?5)")
+                .bind(event.mission_id as i64)
+                .bind(event.at.millis())
+                .bind(&event.kind)
+                .bind(&event.detail)
+                .bind(&event.actor)
+                .execute(&mut *tx)
+                .await?;
+        }
+        if let Some((mission_id, stored)) = &changes.segmentation {
+            sqlx::query(
+                "INSERT INTO segmentations (mission_id, computed_at, labels, segments, critical_points)
+                 VALUES (?1, ?2, ?3, ?4, ?5)
+                 ON CONFLICT (mission_id) DO UPDATE SET computed_at = excluded.computed_at, labels = excluded.labels,
+                     segments = excluded.segments, critical_points = excluded.critical_points",
+            )
+            .bind(*mission_id as i64)
+            .bind(stored.computed_at.millis())
+            .bind(encode_labels(&stored.segmentation.labels))
+            .bind(segments_json(&stored.segmentation))
+            .bind(critical_points_json(&stored.segmentation))
+            .execute(&mut *tx)
+            .await?;
+        }
+        if let Some(m) = &changes.mission {
+            sqlx::query(
+                "UPDATE missions SET state = ?1, replans = ?2, map_updates = ?3, updated_at = ?4 WHERE id = ?5",
+            )
+            .bind(m.state.as_str())
+            .bind(m.replans as i64)
+            .bind(m.map_updates as i64)
+            .bind(now.millis())
+            .bind(m.id as i64)
+            .execute(&mut *tx)
+            .await?;
         }
         tx.commit().await?;
         Ok(())
@@ -551,10 +689,7 @@ mod tests {
                 speed_mps: 0.5,
                 footprint_radius_m: 0.2,
             },
-            pose: Pose {
-                position: Point2::new(0.5, 0.5),
-                heading: 0.1,
-            },
+            pose: Pose { position: Point2::new(0.5, 0.5), heading: 0.1 },
         }
     }
 
@@ -563,15 +698,9 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("store.db");
         let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
-        let mission = store
-            .create_mission(&spec(), Timestamp(1_000))
-            .await
-            .unwrap();
+        let mission = store.create_mission(&spec(), Timestamp(1_000)).await.unwrap();
         assert_eq!(mission.spec, spec());
-        let mut robot = store
-            .create_robot(mission.id, &robot_spec("r1"), Timestamp(2_000))
-            .await
-            .unwrap();
+        let mut robot = store.create_robot(mission.id, &robot_spec("r1"), Timestamp(2_000)).await.unwrap();
         assert_eq!(robot.state, RobotState::Idle);
 
         let rect = CellRect::new(3, 4, 2, 1);
@@ -585,6 +714,7 @@ mod tests {
             policy: "burgard".into(),
             utility: 0.5,
             path_cost: 1.5,
+            gain_region: Some(CellRect::new(1, 2, 3, 4)),
             created_at: Timestamp(3_000),
             updated_at: Timestamp(3_000),
             transitions: vec![Transition {
@@ -594,6 +724,22 @@ mod tests {
                 cause: "replanning".into(),
                 actor: Actor::Policy,
             }],
+        };
+        let frame = spec().frame;
+        let mut labels = vec![0u32; frame.len()];
+        labels[5..40].fill(1);
+        labels[100..130].fill(2);
+        let segmentation = StoredSegmentation {
+            computed_at: Timestamp(3_000),
+            segmentation: Segmentation {
+                frame,
+                labels,
+                segments: vec![
+                    Segment { id: 1, cells: 35, bounds: CellRect::new(5, 0, 35, 1), frontier: vec![Cell::new(7, 0)] },
+                    Segment { id: 2, cells: 30, bounds: CellRect::new(20, 2, 30, 2), frontier: vec![] },
+                ],
+                critical_points: vec![CriticalPoint { cell: Cell::new(19, 1), clearance: 2.5 }],
+            },
         };
         robot.current_task = Some(7);
         robot.last_map_seq = 5;
@@ -609,11 +755,17 @@ mod tests {
                 robots: vec![robot.clone()],
                 new_tasks: vec![task.clone()],
                 task_changes: vec![],
-                patches: vec![LoggedPatch {
-                    robot_id: robot.id,
-                    seq: 5,
-                    patch: patch.clone(),
+                patches: vec![LoggedPatch { robot_id: robot.id, seq: 5, patch: patch.clone() }],
+                policy: Some((mission.id, PolicyConfig::default_for("minpos").unwrap())),
+                events: vec![MissionEvent {
+                    id: 0,
+                    mission_id: mission.id,
+                    at: Timestamp(3_000),
+                    kind: "policy_changed".into(),
+                    detail: "burgard -> minpos".into(),
+                    actor: "ops".into(),
                 }],
+                segmentation: Some((mission.id, segmentation.clone())),
                 at: Some(Timestamp(3_000)),
             })
             .await
@@ -650,32 +802,27 @@ mod tests {
         assert_eq!(patches[0].patch.log_odds()[0], patch.log_odds()[0]);
         assert!(patches[0].patch.log_odds()[1].is_nan());
         assert!(store.open_tasks(mission.id).await.unwrap().is_empty());
-        let tasks = store
-            .tasks(TaskFilter {
-                mission_id: mission.id,
-                robot_id: Some(robot.id),
-                limit: 10,
-            })
-            .await
-            .unwrap();
+        let tasks =
+            store.tasks(TaskFilter { mission_id: mission.id, robot_id: Some(robot.id), limit: 10 }).await.unwrap();
         assert_eq!(tasks.len(), 1);
         assert_eq!(tasks[0].state, TaskState::Reached);
         assert_eq!(tasks[0].transitions.len(), 2);
         assert_eq!(tasks[0].transitions[1].actor, Actor::Robot);
+        assert_eq!(tasks[0].gain_region, Some(CellRect::new(1, 2, 3, 4)));
+        assert_eq!(missions[0].spec.policy.name(), "minpos");
+        let events = store.events(mission.id).await.unwrap();
+        assert_eq!(events.len(), 1);
+        assert_eq!((events[0].kind.as_str(), events[0].actor.as_str()), ("policy_changed", "ops"));
+        assert_eq!(store.segmentation(mission.id).await.unwrap(), Some(segmentation));
         assert_eq!(store.max_task_id().await.unwrap(), 7);
     }
 
     #[tokio::test]
     async fn a_failed_changeset_writes_nothing() {
         let dir = tempfile::tempdir().unwrap();
-        let store = SqliteStore::open(&dir.path().join("s.db"), Durability::Full)
-            .await
-            .unwrap();
+        let store = SqliteStore::open(&dir.path().join("s.db"), Durability::Full).await.unwrap();
         let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
-        let robot = store
-            .create_robot(mission.id, &robot_spec("r1"), Timestamp(1))
-            .await
-            .unwrap();
+        let robot = store.create_robot(mission.id, &robot_spec("r1"), Timestamp(1)).await.unwrap();
         let mut moved = robot.clone();
         moved.last_map_seq = 9;
         // A task for a robot that does not exist violates a foreign key.
@@ -688,17 +835,13 @@ mod tests {
             policy: "burgard".into(),
             utility: 0.0,
             path_cost: 0.0,
+            gain_region: None,
             created_at: Timestamp(1),
             updated_at: Timestamp(1),
             transitions: vec![],
         };
-        let result = store
-            .commit(&Changeset {
-                robots: vec![moved],
-                new_tasks: vec![bad_task],
-                ..Changeset::default()
-            })
-            .await;
+        let result =
+            store.commit(&Changeset { robots: vec![moved], new_tasks: vec![bad_task], ..Changeset::default() }).await;
         assert!(result.is_err());
         assert_eq!(store.robots(mission.id).await.unwrap(), vec![robot]);
     }

@@ -30,18 +30,8 @@ impl TestExecutive {
         let address = listener.local_addr().unwrap();
         let stop = CancellationToken::new();
         let config = coordinator::Config::new(db);
-        let task = tokio::spawn(coordinator::run(
-            listener,
-            stop.clone().cancelled_owned(),
-            config,
-        ));
-        Self {
-            address,
-            url: format!("http://{address}"),
-            db: db.to_owned(),
-            stop,
-            task,
-        }
+        let task = tokio::spawn(coordinator::run(listener, stop.clone().cancelled_owned(), config));
+        Self { address, url: format!("http://{address}"), db: db.to_owned(), stop, task }
     }
 
     /// Shuts down gracefully and waits until it has stopped.
@@ -51,9 +41,7 @@ impl TestExecutive {
     }
 
     pub fn channel(&self) -> Channel {
-        tonic::transport::Endpoint::from_shared(self.url.clone())
-            .unwrap()
-            .connect_lazy()
+        tonic::transport::Endpoint::from_shared(self.url.clone()).unwrap().connect_lazy()
     }
 
     pub fn missions(&self) -> MissionsClient<Channel> {
@@ -67,9 +55,7 @@ impl TestExecutive {
 
 /// A bundled map shipped in `maps/`.
 pub fn bundled_map(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../maps")
-        .join(format!("{name}.yaml"))
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../maps").join(format!("{name}.yaml"))
 }
 
 /// The shared map collection, when the setting `EXPLORATION_SHARED_MAPS`
@@ -105,12 +91,7 @@ pub fn binary(name: &str) -> PathBuf {
 
 /// A mission frame of `width` × `height` cells of 0.1 m at the origin.
 pub fn frame(width: u32, height: u32) -> pb::MapFrame {
-    pb::MapFrame {
-        resolution: 0.1,
-        origin: Some(pb::Point { x: 0.0, y: 0.0 }),
-        width,
-        height,
-    }
+    pb::MapFrame { resolution: 0.1, origin: Some(pb::Point { x: 0.0, y: 0.0 }), width, height }
 }
 
 pub async fn create_mission(
@@ -123,10 +104,7 @@ pub async fn create_mission(
         .create_mission(pb::CreateMissionRequest {
             name: "test".into(),
             frame: Some(frame(width, height)),
-            policy: Some(pb::PolicySpec {
-                name: policy.into(),
-                params: Default::default(),
-            }),
+            policy: Some(pb::PolicySpec { name: policy.into(), params: Default::default() }),
             replan: None,
         })
         .await
@@ -134,13 +112,7 @@ pub async fn create_mission(
         .into_inner()
 }
 
-pub async fn register(
-    fleet: &mut FleetClient<Channel>,
-    mission_id: u64,
-    name: &str,
-    x: f64,
-    y: f64,
-) -> pb::Robot {
+pub async fn register(fleet: &mut FleetClient<Channel>, mission_id: u64, name: &str, x: f64, y: f64) -> pb::Robot {
     fleet
         .register_robot(pb::RegisterRobotRequest {
             mission_id,
@@ -173,47 +145,25 @@ pub fn patch(x: u32, y: u32, width: u32, height: u32, p: f32) -> pb::MapPatch {
     }
 }
 
-pub fn update(
-    robot_id: u64,
-    seq: u64,
-    x: f64,
-    y: f64,
-    patches: Vec<pb::MapPatch>,
-) -> pb::UpdateMapRequest {
-    pb::UpdateMapRequest {
-        robot_id,
-        seq,
-        pose: Some(pb::Pose { x, y, theta: 0.0 }),
-        patches,
-    }
+pub fn update(robot_id: u64, seq: u64, x: f64, y: f64, patches: Vec<pb::MapPatch>) -> pb::UpdateMapRequest {
+    pb::UpdateMapRequest { robot_id, seq, pose: Some(pb::Pose { x, y, theta: 0.0 }), patches }
 }
 
 /// Waits until the executive at `url` answers health checks as SERVING.
 pub async fn wait_until_serving(url: &str, within: Duration) {
     let deadline = tokio::time::Instant::now() + within;
     loop {
-        let channel = tonic::transport::Endpoint::from_shared(url.to_owned())
-            .unwrap()
-            .connect()
-            .await;
+        let channel = tonic::transport::Endpoint::from_shared(url.to_owned()).unwrap().connect().await;
         if let Ok(channel) = channel {
             let mut health = tonic_health::pb::health_client::HealthClient::new(channel);
-            let answer = health
-                .check(tonic_health::pb::HealthCheckRequest {
-                    service: String::new(),
-                })
-                .await;
+            let answer = health.check(tonic_health::pb::HealthCheckRequest { service: String::new() }).await;
             if answer.is_ok_and(|r| {
-                r.into_inner().status
-                    == tonic_health::pb::health_check_response::ServingStatus::Serving as i32
+                r.into_inner().status == tonic_health::pb::health_check_response::ServingStatus::Serving as i32
             }) {
                 return;
             }
         }
-        assert!(
-            tokio::time::Instant::now() < deadline,
-            "the executive at {url} did not come up"
-        );
+        assert!(tokio::time::Instant::now() < deadline, "the executive at {url} did not come up");
         tokio::task::yield_now().await;
         tokio::time::sleep(Duration::from_millis(20)).await;
     }

@@ -1,0 +1,301 @@
+//! `burgard-joint`: the best joint assignment, with squared costs.
+//!
+//! Burgard, Moors, Stachniss & Schneider 2005, Algorithm 2: choose targets
+//! t_1 … t_n maximizing
+//!
+//! Σ_i [ U(t_i | t_1, …, t_{i−1}, t_{i+1}, …, t_n) − β · (V_{t_i}^i)² ]
+//!
+//! where U(t | others) = 1 − Σ_k P(‖t − t_k‖) (Eq. 1, with ray casting) and
+//! V is Algorithm 1's value-iteration cost. Squaring the cost favours
+//! balanced trajectories: the team finishes when its slowest robot does
+//! (Fig. 7). There are T!/(T−n)! joint assignments; when that is at most
+//! `exact_limit` they are all searched (branch and bound), otherwise each
+//! robot keeps its best candidates by 1 − β·V², exhaustively while their
+//! product stays within the limit, and beyond that "a randomized search
+//! technique combined with hill-climbing" (§IV-C): restarts from Algorithm
+//! 1's assignment and from seeded random ones, each improved one robot at a
+//! time until no change helps.
+
+use std::collections::HashMap;
+
+use super::burgard::covered;
+use super::{Burgard, Plan, PlanningInput, Policy, Target, current_target};
+use crate::cost::CostCache;
+use crate::grid::Cell;
+use crate::rng::SplitMix64;
+
+pub(super) const NAME: &str = "burgard-joint";
+
+/// Burgard et al. 2005, Algorithm 2.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BurgardJoint {
+    /// β, occ_max and smoothing, as for Algorithm 1.
+    pub burgard: Burgard,
+    /// Fewest candidate targets per robot in an exhaustive search.
+    pub candidates: usize,
+    /// Largest number of joint assignments searched exhaustively.
+    pub exact_limit: u64,
+    /// Random restarts of the hill climbing.
+    pub restarts: usize,
+}
+
+/// The objective over a set of candidate cells, with P cached per pair.
+struct Objective<'a> {
+    input: &'a PlanningInput<'a>,
+    frontier: &'a [Cell],
+    values: &'a [Vec<Option<f64>>],
+    beta: f64,
+    margin: f64,
+    pairs: HashMap<(usize, usize, usize), f64>,
+}
+
+impl Objective<'_> {
+    /// 1 − β·V² of robot i at frontier cell t.
+    fn own(&self, i: usize, t: usize) -> f64 {
+        let v = self.values[i][t].unwrap_or(f64::INFINITY);
+        let keep = if Some(self.frontier[t]) == current_target(&self.input.robots[i]) { self.margin } else { 0.0 };
+        1.0 - self.beta * v * v + keep
+    }
+
+    /// P(‖t − u‖) for robot k's sensor at u.
+    fn overlap(&mut self, t: usize, u: usize, k: usize) -> f64 {
+        let (grid, frontier, range) =
+            (self.input.grid, self.frontier, self.input.robots[k].capabilities.sensor_range_m);
+        *self.pairs.entry((t, u, k)).or_insert_with(|| covered(grid, frontier[u], frontier[t], range))
+    }
+
+    /// J of a complete assignment (robot → frontier index).
+    fn total(&mut self, assignment: &[(usize, usize)]) -> f64 {
+        let mut sum = 0.0;
+        for &(i, t) in assignment {
+            sum += self.own(i, t);
+            for &(k, u) in assignment {
+                if k != i {
+                    sum -= self.overlap(t, u, k);
+                }
+            }
+        }
+        sum
+    }
+}
+
+impl BurgardJoint {
+    fn search_exhaustively(
+        objective: &mut Objective<'_>,
+        lists: &[(usize, Vec<usize>)],
+        depth: usize,
+        chosen: &mut Vec<(usize, usize)>,
+        partial: f64,
+        best: &mut (f64, Vec<(usize, usize)>),
+        bounds: &[f64],
+    ) {
+        if depth == lists.len() {
+            if partial > best.0 {
+                *best = (partial, chosen.clone());
+            }
+            return;
+        }
+        // Later robots can only add their own best term and subtract overlaps.
+        if partial + bounds[depth] <= best.0 {
+            return;
+        }
+        let (i, ref targets) = lists[depth];
+        for &t in targets {
+            if chosen.iter().any(|&(_, u)| u == t) {
+                continue;
+            }
+            let mut gain = objective.own(i, t);
+            for &(k, u) in chosen.iter() {
+                gain -= objective.overlap(t, u, k) + objective.overlap(u, t, i);
+            }
+            chosen.push((i, t));
+            Self::search_exhaustively(objective, lists, depth + 1, chosen, partial + gain, best, bounds);
+            chosen.pop();
+        }
+    }
+
+    /// Coordinate ascent: move one robot at a time to the target that helps
+    /// most given the others, until no move helps.
+    fn hill_climb(
+        objective: &mut Objective<'_>,
+        lists: &[(usize, Vec<usize>)],
+        mut current: Vec<(usize, usize)>,
+    ) -> (f64, Vec<(usize, usize)>) {
+        loop {
+            let mut improved = false;
+            for slot in 0..current.len() {
+                let (i, now) = current[slot];
+                // What robot i's target contributes, given the others.
+                let contribution = |objective: &mut Objective<'_>, t: usize| {
+                    let mut c = objective.own(i, t);
+                    for (other, &(k, u)) in current.iter().enumerate() {
+                        if other != slot {
+                            c -= objective.overlap(t, u, k) + objective.overlap(u, t, i);
+                        }
+                    }
+                    c
+                };
+                let mut best = (contribution(objective, now), now);
+                for &t in &lists[slot].1 {
+                    if t == now || current.iter().any(|&(_, u)| u == t) {
+                        continue;
+                    }
+                    let c = contribution(objective, t);
+                    if c > best.0 + 1e-12 {
+                        best = (c, t);
+                    }
+                }
+                if best.1 != now {
+                    current[slot] = (i, best.1);
+                    improved = true;
+                }
+            }
+            if !improved {
+                return (objective.total(&current), current);
+            }
+        }
+    }
+}
+
+impl Policy for BurgardJoint {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
+        let frontier = input.frontier_cells();
+        let values = self.burgard.cost_values(input, costs, &frontier);
+        let n = input.robots.len();
+        let mut objective = Objective {
+            input,
+            frontier: &frontier,
+            values: &values,
+            beta: self.burgard.beta,
+            margin: self.burgard.switch_margin,
+            pairs: HashMap::new(),
+        };
+        // Each robot's reachable targets, best first by 1 − β·V².
+        let ranked: Vec<(usize, Vec<usize>)> = (0..n)
+            .map(|i| {
+                let mut reachable: Vec<usize> = (0..frontier.len()).filter(|&t| values[i][t].is_some()).collect();
+                reachable.sort_by(|&a, &b| objective.own(i, b).total_cmp(&objective.own(i, a)).then(a.cmp(&b)));
+                (i, reachable)
+            })
+            .filter(|(_, r)| !r.is_empty())
+            .collect();
+        let active = ranked.len();
+        let mut targets: Vec<Option<Target>> = vec![None; n];
+        if active == 0 {
+            return Plan::of(targets);
+        }
+        let all = frontier.len() as f64;
+        let everything = (active as f64) * all.ln() <= (self.exact_limit as f64).ln();
+        let per_robot = ((self.exact_limit as f64).powf(1.0 / active as f64).floor() as usize).max(1);
+        let best = if everything || per_robot >= self.candidates {
+            let keep = if everything { usize::MAX } else { per_robot };
+            let lists: Vec<(usize, Vec<usize>)> =
+                ranked.iter().map(|(i, r)| (*i, r.iter().copied().take(keep).collect())).collect();
+            let mut bounds = vec![0.0; lists.len() + 1];
+            for d in (0..lists.len()).rev() {
+                let (i, ref l) = lists[d];
+                bounds[d] = bounds[d + 1] + l.iter().map(|&t| objective.own(i, t)).fold(f64::NEG_INFINITY, f64::max);
+            }
+            let mut best = (f64::NEG_INFINITY, Vec::new());
+            Self::search_exhaustively(&mut objective, &lists, 0, &mut Vec::new(), 0.0, &mut best, &bounds);
+            best
+        } else {
+            let width = 4 * self.candidates;
+            let lists: Vec<(usize, Vec<usize>)> =
+                ranked.iter().map(|(i, r)| (*i, r.iter().copied().take(width).collect())).collect();
+            // Start from Algorithm 1's choice, then from random ones.
+            let greedy = self.burgard.assign(input, &frontier, &values);
+            let index_of = |cell: Cell| frontier.iter().position(|&c| c == cell);
+            let mut starts: Vec<Vec<(usize, usize)>> = Vec::new();
+            let mut from_greedy: Vec<(usize, usize)> = Vec::new();
+            for (i, _) in &lists {
+                if let Some(t) =
+                    greedy[*i].and_then(|t| index_of(t.cell)).filter(|t| from_greedy.iter().all(|&(_, u)| u != *t))
+                {
+                    from_greedy.push((*i, t));
+                    continue;
+                }
+                from_greedy.clear();
+                break;
+            }
+            if from_greedy.len() == lists.len() {
+                starts.push(from_greedy);
+            }
+            let mut rng = SplitMix64::new(input.seed);
+            for _ in 0..self.restarts {
+                let mut start = Vec::new();
+                for (i, l) in &lists {
+                    let free: Vec<usize> = l.iter().copied().filter(|t| start.iter().all(|&(_, u)| u != *t)).collect();
+                    if let Some(&t) = free.get(rng.below(free.len().max(1) as u64) as usize) {
+                        start.push((*i, t));
+                    }
+                }
+                if start.len() == lists.len() {
+                    starts.push(start);
+                }
+            }
+            starts
+                .into_iter()
+                .map(|s| Self::hill_climb(&mut objective, &lists, s))
+                .fold((f64::NEG_INFINITY, Vec::new()), |best, c| if c.0 > best.0 { c } else { best })
+        };
+        // Fewer frontier cells than robots: the rest fall back on Algorithm 1.
+        let fallback = if best.1.len() < active { Some(self.burgard.assign(input, &frontier, &values)) } else { None };
+        for &(i, t) in &best.1 {
+            let v = values[i][t].unwrap_or(0.0);
+            targets[i] =
+                Some(Target { cell: frontier[t], utility: objective.own(i, t), path_cost: v, gain_region: None });
+        }
+        if let Some(fallback) = fallback {
+            for (i, slot) in targets.iter_mut().enumerate() {
+                if slot.is_none() {
+                    *slot = fallback[i];
+                }
+            }
+        }
+        Plan::of(targets)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::testing::grid_from_picture;
+    use crate::policy::testing::{plan_targets, robot};
+
+    fn joint(exact_limit: u64) -> BurgardJoint {
+        BurgardJoint {
+            burgard: Burgard { beta: 1.0, occ_max: 0.6, smoothing_sigma_m: 0.0, switch_margin: 0.0 },
+            candidates: 2,
+            exact_limit,
+            restarts: 4,
+        }
+    }
+
+    /// Burgard et al. 2005, Fig. 7: a corridor with two rooms. Algorithm 1
+    /// gives robot 2 the room next to it (the cheapest pair of all) and sends
+    /// robot 1 to the far room; Algorithm 2's squared costs send robot 1 to
+    /// the near room and robot 2 on to the far one, so the slower of the two
+    /// arrives sooner.
+    #[test]
+    fn the_joint_search_finds_the_balanced_assignment_algorithm_1_misses() {
+        let grid = grid_from_picture(&[
+            "###########?########?#", //
+            "#....................#", //
+            "######################", //
+        ]);
+        let (a, b) = (Cell::new(11, 1), Cell::new(20, 1));
+        let robots = [robot(1, Cell::new(1, 1), 3.0), robot(2, Cell::new(10, 1), 3.0)];
+        let algorithm_1 = plan_targets(&joint(1).burgard, &grid, &robots);
+        assert_eq!(algorithm_1, vec![Some(b), Some(a)]);
+        // Exhaustive (4 joint assignments) and randomized (limit 1) both find it.
+        for limit in [50_000, 1] {
+            let algorithm_2 = plan_targets(&joint(limit), &grid, &robots);
+            assert_eq!(algorithm_2, vec![Some(a), Some(b)], "exact_limit {limit}");
+        }
+    }
+}

@@ -1,0 +1,235 @@
+//! `colares`: information, distance and coordination in one utility.
+//!
+//! Colares & Chaimowicz 2016, Eq. 1: each robot takes the frontier f of
+//! highest
+//!
+//! U(f) = Inf(f) + Dist(f) − Coord(f).
+//!
+//! As in the paper's information map and Fig. 3c, f is evaluated cell by
+//! cell: every frontier cell is a candidate, and its frontier is the part
+//! of the frontier inside an n × n window around it.
+//!
+//! - Inf (§3.1, Eqs. 2–3): a cell's information potential is a
+//!   non-normalized Gaussian of its P(occ) centred on 0.5 (unknown cells
+//!   count as 0.5), summed with its eight neighbours'; Inf(f) sums that over
+//!   the frontier cells in the window.
+//! - Dist (§3.2, Eq. 4): w^(α−1) · (1 − w)^(β−1), w the robot's wavefront
+//!   distance to the cell divided by the largest over the frontier cells.
+//! - Coord (§3.3): a negative wavefront from each other robot's pose,
+//!   highest at the robot and falling with distance, normalized to [0, 1];
+//!   with several robots the strongest one counts.
+//!
+//! A robot travels to the frontier it chose before choosing again (with
+//! `commit`, the default), as the paper's robots navigate to their chosen
+//! frontier: re-deciding on the way makes robots turn back, since the
+//! distance factor repels them from frontiers that came close.
+//!
+//! The paper adds the three factors; Inf (a sum over cells) and Dist (a
+//! product of powers below one) live on different scales, so both are
+//! normalized to [0, 1] over the current frontiers before adding, as Coord
+//! is. The paper's robots decide alone and meet to merge maps; here all
+//! poses are known to the executive, so every robot sees every other.
+
+use super::{Plan, PlanningInput, Policy, Target, current_target, free_space_cost_maps};
+use crate::cost::CostCache;
+use crate::grid::{Cell, CellRect, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
+
+pub(super) const NAME: &str = "colares";
+
+/// Colares & Chaimowicz 2016, Eq. 1.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Colares {
+    /// α of the distance factor (Eq. 4).
+    pub alpha: f64,
+    /// β of the distance factor (Eq. 4).
+    pub beta: f64,
+    /// Width of the Gaussian of P(occ) (§3.1).
+    pub sigma: f64,
+    /// Side n of the window that makes a cell's frontier, cells (odd).
+    pub window: usize,
+    /// Hysteresis: a robot's current target scores this much more.
+    pub switch_margin: f64,
+    /// Whether a robot keeps its target until it gets there, as the paper's
+    /// robots navigate to the frontier they chose, even once the target
+    /// stops being a frontier.
+    pub commit: bool,
+}
+
+/// Eq. 4: the distance factor w^(α−1) · (1 − w)^(β−1) of a normalized
+/// distance w ∈ [0, 1]; peaks at w = (α − 1)/(α + β − 2).
+pub fn distance_factor(w: f64, alpha: f64, beta: f64) -> f64 {
+    let w = w.clamp(0.0, 1.0);
+    w.powf(alpha - 1.0) * (1.0 - w).powf(beta - 1.0)
+}
+
+/// §3.1, Eq. 2: IP(c) = G(c) + Σ over the eight neighbours G(n), with
+/// G(p) = exp(−(p − 0.5)² / (2σ²)) and unknown cells at p = 0.5. Cells
+/// beyond the grid count as known walls (G of p = 1).
+pub fn information_potential(grid: &OccupancyGrid, cell: Cell, sigma: f64) -> f64 {
+    let frame = grid.frame();
+    let g = |c: Cell| {
+        let p = if !frame.contains(c) {
+            1.0
+        } else {
+            match grid.value(c) {
+                UNKNOWN => 0.5,
+                v => f64::from(v) / 100.0,
+            }
+        };
+        (-(p - 0.5) * (p - 0.5) / (2.0 * sigma * sigma)).exp()
+    };
+    g(cell) + NEIGHBOURS_8.iter().map(|&(dx, dy)| g(Cell::new(cell.x + dx, cell.y + dy))).sum::<f64>()
+}
+
+fn normalized(values: &[f64]) -> Vec<f64> {
+    let max = values.iter().copied().filter(|v| v.is_finite()).fold(0.0f64, f64::max);
+    values.iter().map(|v| if max > 0.0 { v / max } else { 0.0 }).collect()
+}
+
+impl Policy for Colares {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
+        let frontier = input.frontier_cells();
+        let frame = input.grid.frame();
+        // Eqs. 2–3 over each cell's window, normalized over the frontier.
+        let potential: Vec<f64> = frontier.iter().map(|&c| information_potential(input.grid, c, self.sigma)).collect();
+        let mut in_window = vec![f64::NAN; frame.len()];
+        for (c, p) in frontier.iter().zip(&potential) {
+            in_window[frame.index(*c)] = *p;
+        }
+        let half = (self.window / 2) as i32;
+        let inf: Vec<f64> = frontier
+            .iter()
+            .map(|c| {
+                CellRect::new(c.x - half, c.y - half, 2 * half as u32 + 1, 2 * half as u32 + 1)
+                    .cells()
+                    .filter(|n| frame.contains(*n))
+                    .map(|n| in_window[frame.index(n)])
+                    .filter(|p| !p.is_nan())
+                    .sum()
+            })
+            .collect();
+        let inf = normalized(&inf);
+        let maps = free_space_cost_maps(input, costs);
+        let distances: Vec<Vec<Option<f64>>> =
+            maps.iter().map(|m| frontier.iter().map(|&c| m.cost(c)).collect()).collect();
+        let farthest: Vec<f64> =
+            distances.iter().map(|row| row.iter().flatten().copied().fold(0.0f64, f64::max)).collect();
+        // Negative wavefronts: 1 at each robot, falling to 0 at its farthest frontier cell.
+        let pressure: Vec<Vec<f64>> = distances
+            .iter()
+            .zip(&farthest)
+            .map(|(row, &far)| {
+                row.iter()
+                    .map(|d| match d {
+                        Some(d) if far > 0.0 => 1.0 - d / far,
+                        Some(_) => 1.0,
+                        None => 0.0,
+                    })
+                    .collect()
+            })
+            .collect();
+        let targets = (0..input.robots.len())
+            .map(|i| {
+                let robot = &input.robots[i];
+                let committed = robot.current.filter(|c| self.commit && c.target != robot.cell);
+                if let Some((current, cost)) = committed.and_then(|c| maps[i].cost(c.target).map(|cost| (c, cost))) {
+                    return Some(Target { cell: current.target, utility: 0.0, path_cost: cost, gain_region: None });
+                }
+                let far = farthest[i];
+                let dist: Vec<f64> = distances[i]
+                    .iter()
+                    .map(|d| {
+                        d.map_or(0.0, |d| distance_factor(if far > 0.0 { d / far } else { 0.0 }, self.alpha, self.beta))
+                    })
+                    .collect();
+                let dist = normalized(&dist);
+                let current = current_target(&input.robots[i]);
+                distances[i]
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(t, d)| d.map(|d| (t, d)))
+                    .map(|(t, d)| {
+                        let coord =
+                            (0..input.robots.len()).filter(|&k| k != i).map(|k| pressure[k][t]).fold(0.0f64, f64::max);
+                        let keep = if Some(frontier[t]) == current { self.switch_margin } else { 0.0 };
+                        (inf[t] + dist[t] - coord + keep, t, d)
+                    })
+                    // Ties to the first cell: deterministic.
+                    .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
+                    .map(|(utility, t, d)| Target { cell: frontier[t], utility, path_cost: d, gain_region: None })
+            })
+            .collect();
+        Plan::of(targets)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::testing::grid_from_picture;
+    use crate::policy::testing::{plan_targets, robot};
+
+    /// Colares & Chaimowicz 2016, Fig. 2: (α, β) = (4, 9) favours near
+    /// frontiers, (9, 4) far ones; each curve rises to a single peak at
+    /// (α − 1)/(α + β − 2) and falls to zero at both ends.
+    #[test]
+    fn the_distance_factor_has_the_shape_of_fig_2() {
+        let peak = |a: f64, b: f64| {
+            (0..=1000)
+                .map(|k| k as f64 / 1000.0)
+                .max_by(|x, y| distance_factor(*x, a, b).total_cmp(&distance_factor(*y, a, b)))
+                .unwrap()
+        };
+        assert!((peak(4.0, 9.0) - 3.0 / 11.0).abs() < 1e-3);
+        assert!((peak(9.0, 4.0) - 8.0 / 11.0).abs() < 1e-3);
+        for (a, b) in [(4.0, 9.0), (9.0, 4.0)] {
+            assert_eq!(distance_factor(0.0, a, b), 0.0);
+            assert_eq!(distance_factor(1.0, a, b), 0.0);
+            let p = peak(a, b);
+            for k in 1..100 {
+                let (x, y) = (k as f64 / 100.0, (k + 1) as f64 / 100.0);
+                let (fx, fy) = (distance_factor(x, a, b), distance_factor(y, a, b));
+                if y <= p {
+                    assert!(fy > fx, "({a}, {b}) rises before its peak");
+                } else if x >= p {
+                    assert!(fy < fx, "({a}, {b}) falls after its peak");
+                }
+            }
+        }
+        // Mirror images: (4, 9) at w is (9, 4) at 1 − w.
+        for k in 0..=20 {
+            let w = k as f64 / 20.0;
+            assert!((distance_factor(w, 4.0, 9.0) - distance_factor(1.0 - w, 9.0, 4.0)).abs() < 1e-15);
+        }
+    }
+
+    #[test]
+    fn unknown_cells_carry_the_most_potential() {
+        let grid = grid_from_picture(&["???", "???", "???", "...", "###"]);
+        let unknown = information_potential(&grid, Cell::new(1, 3), 0.15);
+        let edge = information_potential(&grid, Cell::new(1, 2), 0.15);
+        assert!((unknown - 9.0).abs() < 1e-9);
+        assert!(edge < unknown);
+    }
+
+    #[test]
+    fn alpha_and_beta_choose_between_near_and_far_frontier_cells() {
+        // A long frontier along a wall of unknown space; the robot at one end.
+        let grid = grid_from_picture(&[
+            "??????????????????????", //
+            "......................", //
+            "######################", //
+        ]);
+        let robots = [robot(0, Cell::new(0, 1), 3.0)];
+        let colares = |alpha, beta| Colares { alpha, beta, sigma: 0.15, window: 5, switch_margin: 0.0, commit: false };
+        let near = plan_targets(&colares(2.0, 9.0), &grid, &robots)[0].unwrap();
+        let far = plan_targets(&colares(9.0, 2.0), &grid, &robots)[0].unwrap();
+        // Peaks at w = 1/9 and 8/9 of the 21 cells.
+        assert!((1..=4).contains(&near.x), "{near:?}");
+        assert!((17..=20).contains(&far.x), "{far:?}");
+    }
+}

@@ -1,0 +1,184 @@
+//! `segmentation`: one robot per room.
+//!
+//! Wurm, Stachniss & Burgard 2008, Algorithm 1:
+//! 1. segment the explored map (Voronoi graph, critical points; see
+//!    [`crate::segment`]);
+//! 2. the frontier targets of each segment;
+//! 3. the cost C_s^i of segment s for robot i: the path cost to its nearest
+//!    frontier cell,
+//! 4. discounted by a constant factor if robot i is already in s (so robots
+//!    stay in their segment until it is explored);
+//! 5. robots to segments by the Hungarian method, with infinite cost where
+//!    a robot cannot enter a segment (Eq. 4, heterogeneous teams: each
+//!    robot's costs come from its own configuration space);
+//! 6. within each segment, its robots to its frontier cells by the
+//!    Hungarian method on path costs (lines 6–8).
+//!
+//! More robots than unexplored segments: the segments are offered again to
+//! the robots left over (§III, "duplicating existing targets").
+
+use super::{Plan, PlanningInput, Policy, Target, current_target, free_space_cost_maps};
+use crate::assign::assign_with_dummies;
+use crate::cost::CostCache;
+use crate::segment::segment;
+
+pub(super) const NAME: &str = "segmentation";
+
+/// Wurm et al. 2008, Algorithm 1.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SegmentationPolicy {
+    /// Hysteresis: the segment and the cell of a robot's current target cost it this much less, metres.
+    pub switch_margin: f64,
+    /// Factor on a segment's cost for a robot inside it (line 4).
+    pub inside_discount: f64,
+    /// How far a critical point's clearance lies below both sides, metres.
+    pub min_drop_m: f64,
+    /// Smaller segments merge into a neighbour, square metres.
+    pub min_segment_m2: f64,
+}
+
+/// Rounds of optimal assignment of `rows` to columns: each round gives every
+/// column to at most one waiting row; rows left over wait for the next.
+fn assign_in_rounds(costs: &[Vec<f64>], columns: usize) -> Vec<Option<usize>> {
+    let mut result = vec![None; costs.len()];
+    loop {
+        let waiting: Vec<usize> =
+            (0..costs.len()).filter(|&i| result[i].is_none() && costs[i].iter().any(|c| c.is_finite())).collect();
+        if waiting.is_empty() || columns == 0 {
+            return result;
+        }
+        let matrix: Vec<f64> = waiting.iter().flat_map(|&i| costs[i].iter().copied()).collect();
+        let Ok(solution) = assign_with_dummies(&matrix, waiting.len(), columns) else {
+            return result;
+        };
+        let mut progressed = false;
+        for (row, col) in solution.row_to_col.iter().enumerate() {
+            if let Some(c) = col {
+                result[waiting[row]] = Some(*c);
+                progressed = true;
+            }
+        }
+        if !progressed {
+            return result;
+        }
+    }
+}
+
+impl Policy for SegmentationPolicy {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
+        let grid = input.grid;
+        let resolution = grid.frame().resolution;
+        let frontier = input.frontier_cells();
+        // Line 1–2: segments and their frontier targets.
+        let segmentation = segment(
+            grid,
+            &frontier,
+            self.min_drop_m / resolution,
+            (self.min_segment_m2 / (resolution * resolution)).ceil() as usize,
+        );
+        let open: Vec<&crate::segment::Segment> =
+            segmentation.segments.iter().filter(|s| !s.frontier.is_empty()).collect();
+        let maps = free_space_cost_maps(input, costs);
+        // Lines 3–4: C_s^i, infinite where robot i cannot reach segment s (Eq. 4).
+        let segment_costs: Vec<Vec<f64>> = input
+            .robots
+            .iter()
+            .zip(&maps)
+            .map(|(robot, map)| {
+                let home = segmentation.segment_of(robot.cell);
+                let current = current_target(robot);
+                let target_segment = current.and_then(|c| segmentation.segment_of(c));
+                open.iter()
+                    .map(|s| {
+                        let nearest = s.frontier.iter().filter_map(|&c| map.cost(c)).fold(f64::INFINITY, f64::min);
+                        let inside = if home == Some(s.id) { nearest * self.inside_discount } else { nearest };
+                        if target_segment == Some(s.id) { inside - self.switch_margin } else { inside }
+                    })
+                    .collect()
+            })
+            .collect();
+        // Line 5: robots to segments.
+        let chosen = assign_in_rounds(&segment_costs, open.len());
+        // Lines 6–8: within each segment, its robots to its frontier cells.
+        let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
+        for (k, s) in open.iter().enumerate() {
+            let robots: Vec<usize> = (0..chosen.len()).filter(|&i| chosen[i] == Some(k)).collect();
+            if robots.is_empty() {
+                continue;
+            }
+            let cell_costs: Vec<Vec<f64>> = robots
+                .iter()
+                .map(|&i| {
+                    let current = current_target(&input.robots[i]);
+                    s.frontier
+                        .iter()
+                        .map(|&c| {
+                            let cost = maps[i].cost(c).unwrap_or(f64::INFINITY);
+                            if Some(c) == current { cost - self.switch_margin } else { cost }
+                        })
+                        .collect()
+                })
+                .collect();
+            let within = assign_in_rounds(&cell_costs, s.frontier.len());
+            for (row, col) in within.iter().enumerate() {
+                let i = robots[row];
+                if let Some(c) = col {
+                    let cost = maps[i].cost(s.frontier[*c]).unwrap_or(f64::INFINITY);
+                    targets[i] = Some(Target {
+                        cell: s.frontier[*c],
+                        utility: -segment_costs[i][k],
+                        path_cost: cost,
+                        gain_region: None,
+                    });
+                }
+            }
+        }
+        Plan { targets, segmentation: Some(segmentation) }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::Cell;
+    use crate::grid::testing::grid_from_picture;
+    use crate::policy::Greedy;
+    use crate::policy::testing::{plan_targets, robot};
+
+    /// Wurm et al. 2008, §V: two robots in a corridor, two rooms off it. Room
+    /// A has two frontiers (a pillar splits its unexplored part), so the
+    /// frontier-based greedy assignment sends both robots into A; segment by
+    /// segment, one robot goes to each room.
+    #[test]
+    fn two_robots_two_rooms_one_robot_per_room() {
+        let grid = grid_from_picture(&[
+            "#######################", //
+            "#???#???#####?????????#", //
+            "#???#???#####?????????#", //
+            "#...#...#####.........#", //
+            "#.......#####.........#", //
+            "#.......#####.........#", //
+            "#.......#####.........#", //
+            "####.##########.#######", //
+            "#.....................#", //
+            "#.....................#", //
+            "#.....................#", //
+            "#######################", //
+        ]);
+        let in_room_a = |c: Cell| c.x < 8 && c.y >= 4;
+        let in_room_b = |c: Cell| c.x > 12 && c.y >= 4;
+        let robots = [robot(0, Cell::new(3, 2), 3.0), robot(1, Cell::new(5, 2), 3.0)];
+        let greedy = plan_targets(&Greedy::default(), &grid, &robots);
+        assert!(greedy.iter().all(|t| t.is_some_and(in_room_a)), "greedy: {greedy:?}");
+        let policy =
+            SegmentationPolicy { switch_margin: 0.0, inside_discount: 0.5, min_drop_m: 0.5, min_segment_m2: 1.0 };
+        let targets = plan_targets(&policy, &grid, &robots);
+        let a = targets.iter().filter(|t| t.is_some_and(in_room_a)).count();
+        let b = targets.iter().filter(|t| t.is_some_and(in_room_b)).count();
+        assert_eq!((a, b), (1, 1), "segmentation: {targets:?}");
+    }
+}

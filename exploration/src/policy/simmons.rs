@@ -1,0 +1,323 @@
+//! `simmons`: robots bid, the executive assigns greedily on net utility.
+//!
+//! Simmons, Apfelbaum, Burgard, Fox, Moors, Thrun & Younes 2000.
+//!
+//! Bids (§4.1, [`compute_bids`]): frontier cells at least a robot radius
+//! apart; for each, the path cost from the robot and the expected
+//! information gain, the number of unknown cells within sensor range of the
+//! cell reached by flood fill (propagation stops at clear and obstacle
+//! cells, and beyond the sensor range), with the bounding rectangle of that
+//! region. Robots compute their own bids and send them (`SubmitBids`); for a
+//! robot that sent none, the executive computes them from the fused map.
+//!
+//! Assignment (§4.2): the bid of highest net utility
+//!
+//! u_j = (1 − d_j) · I_j − c_j,  d_j = Area(IGR_j ∩ ∪ IGR_assigned) / Area(IGR_j)
+//!
+//! is assigned first; the bids of the remaining robots are discounted by the
+//! overlap d_j of their gain rectangles with those already assigned, and so
+//! on until every robot has a task or no bid's discounted gain reaches the
+//! minimum threshold (those robots stay idle). Hysteresis: a frontier cell
+//! inside the gain region of the robot's current task has its gain divided
+//! by the hysteresis ratio (usually 0.85). c_j is the path cost in cells
+//! times `cost_weight`, so that gain (cells) and cost are commensurate.
+
+use super::{Bid, Capabilities, Plan, PlanningInput, Policy, Target, free_space_cost_maps};
+use crate::cost::{CostCache, CostMap};
+use crate::grid::{Cell, CellRect, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
+
+pub(super) const NAME: &str = "simmons";
+
+/// Simmons et al. 2000, §4.2.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Simmons {
+    /// The gain of a frontier inside the current task's gain region is divided by this.
+    pub hysteresis_ratio: f64,
+    /// Robots whose best discounted gain is below this (cells) stay idle.
+    pub min_gain: f64,
+    /// Cells of gain one cell of path is worth.
+    pub cost_weight: f64,
+    /// Bid frontier cells are at least this far apart, metres.
+    pub spacing_m: f64,
+}
+
+/// Frontier cells at least `spacing_cells` apart, chosen greedily in the
+/// given order (§4.1: "each frontier cell must be at least some minimum
+/// distance from all other frontier cells").
+pub fn spaced(cells: &[Cell], spacing_cells: f64) -> Vec<Cell> {
+    if spacing_cells <= 1.0 {
+        return cells.to_vec();
+    }
+    let bucket = spacing_cells.ceil() as i32;
+    let mut grid: std::collections::HashMap<(i32, i32), Vec<Cell>> = std::collections::HashMap::new();
+    let mut kept = Vec::new();
+    let min_sq = spacing_cells * spacing_cells;
+    for &c in cells {
+        let (bx, by) = (c.x.div_euclid(bucket), c.y.div_euclid(bucket));
+        let clear = (-1..=1).all(|dy| {
+            (-1..=1).all(|dx| {
+                grid.get(&(bx + dx, by + dy)).is_none_or(|v| v.iter().all(|o| (o.distance_squared(c) as f64) >= min_sq))
+            })
+        });
+        if clear {
+            grid.entry((bx, by)).or_default().push(c);
+            kept.push(c);
+        }
+    }
+    kept
+}
+
+/// The information-gain region of a frontier cell (§4.1): the unknown
+/// cells within `range_cells` of it reached by a 4-connected flood fill
+/// through unknown cells, as a count and a bounding rectangle.
+///
+/// Complexity: O(range²).
+pub fn gain_region(grid: &OccupancyGrid, at: Cell, range_cells: f64) -> (f64, CellRect) {
+    let frame = grid.frame();
+    let range_sq = range_cells * range_cells;
+    let mut seen = std::collections::HashSet::new();
+    let mut stack: Vec<Cell> = NEIGHBOURS_8[..4]
+        .iter()
+        .map(|&(dx, dy)| Cell::new(at.x + dx, at.y + dy))
+        .filter(|c| frame.contains(*c) && grid.value(*c) == UNKNOWN)
+        .collect();
+    for c in &stack {
+        seen.insert(*c);
+    }
+    let mut rect = CellRect::new(at.x, at.y, 1, 1);
+    let mut count = 0usize;
+    while let Some(c) = stack.pop() {
+        count += 1;
+        rect = rect.including(c);
+        for &(dx, dy) in &NEIGHBOURS_8[..4] {
+            let n = Cell::new(c.x + dx, c.y + dy);
+            if frame.contains(n)
+                && grid.value(n) == UNKNOWN
+                && (n.distance_squared(at) as f64) <= range_sq
+                && seen.insert(n)
+            {
+                stack.push(n);
+            }
+        }
+    }
+    (count as f64, rect)
+}
+
+/// A robot's bids (§4.1): for spaced frontier cells it can reach, the path
+/// cost (from `cost_map`, the robot's own) and the information gain of its
+/// sensor there.
+pub fn compute_bids(
+    grid: &OccupancyGrid,
+    frontier: &[Cell],
+    cost_map: &CostMap,
+    capabilities: &Capabilities,
+    spacing_m: f64,
+) -> Vec<Bid> {
+    let resolution = grid.frame().resolution;
+    let candidates = spaced(frontier, spacing_m / resolution);
+    let range_cells = capabilities.sensor_range_m / resolution;
+    candidates
+        .into_iter()
+        .filter_map(|target| {
+            let cost = cost_map.cost(target)?;
+            let (gain, region) = gain_region(grid, target, range_cells);
+            Some(Bid { target, path_cost_m: cost, information_gain: gain, gain_region: region })
+        })
+        .collect()
+}
+
+/// The share of `rect` covered by the union of `assigned`.
+fn overlap(rect: &CellRect, assigned: &[CellRect]) -> f64 {
+    let touching: Vec<CellRect> = assigned.iter().filter_map(|a| a.intersection(rect)).collect();
+    if touching.is_empty() {
+        return 0.0;
+    }
+    let covered = rect.cells().filter(|c| touching.iter().any(|t| t.contains(*c))).count();
+    covered as f64 / rect.area() as f64
+}
+
+impl Policy for Simmons {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
+        let grid = input.grid;
+        let resolution = grid.frame().resolution;
+        let needs_bids = input.robots.iter().enumerate().any(|(i, _)| input.bids.get(i).is_none_or(Vec::is_empty));
+        // Bids for robots that sent none: computed here from the fused map.
+        // Candidate cells and gains do not depend on the robot, only costs do.
+        let computed: Vec<Vec<Bid>> = if needs_bids {
+            let frontier = spaced(&input.frontier_cells(), self.spacing_m / resolution);
+            let maps = free_space_cost_maps(input, costs);
+            let mut gains: std::collections::HashMap<(Cell, u64), (f64, CellRect)> = std::collections::HashMap::new();
+            input
+                .robots
+                .iter()
+                .zip(&maps)
+                .enumerate()
+                .map(|(i, (robot, map))| {
+                    if input.bids.get(i).is_some_and(|b| !b.is_empty()) {
+                        return Vec::new();
+                    }
+                    let range = robot.capabilities.sensor_range_m / resolution;
+                    frontier
+                        .iter()
+                        .filter_map(|&target| {
+                            let cost = map.cost(target)?;
+                            let (gain, region) = *gains
+                                .entry((target, range.to_bits()))
+                                .or_insert_with(|| gain_region(grid, target, range));
+                            Some(Bid { target, path_cost_m: cost, information_gain: gain, gain_region: region })
+                        })
+                        .collect()
+                })
+                .collect()
+        } else {
+            vec![Vec::new(); input.robots.len()]
+        };
+        let bids: Vec<&[Bid]> = (0..input.robots.len())
+            .map(|i| match input.bids.get(i) {
+                Some(b) if !b.is_empty() => &b[..],
+                _ => &computed[i][..],
+            })
+            .collect();
+        let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
+        let mut assigned: Vec<CellRect> = Vec::new();
+        loop {
+            let mut best: Option<(f64, usize, usize, f64)> = None;
+            for (i, robot_bids) in bids.iter().enumerate() {
+                if targets[i].is_some() {
+                    continue;
+                }
+                let current_region = input.robots[i].current.and_then(|c| c.gain_region);
+                for (b, bid) in robot_bids.iter().enumerate() {
+                    let mut gain = (1.0 - overlap(&bid.gain_region, &assigned)) * bid.information_gain;
+                    if current_region.is_some_and(|r| r.contains(bid.target)) {
+                        gain /= self.hysteresis_ratio;
+                    }
+                    if gain < self.min_gain || gain <= 0.0 {
+                        continue;
+                    }
+                    let utility = gain - self.cost_weight * bid.path_cost_m / resolution;
+                    if best.is_none_or(|(u, ..)| utility > u) {
+                        best = Some((utility, i, b, gain));
+                    }
+                }
+            }
+            let Some((utility, i, b, _)) = best else { break };
+            let bid = bids[i][b];
+            assigned.push(bid.gain_region);
+            targets[i] = Some(Target {
+                cell: bid.target,
+                utility,
+                path_cost: bid.path_cost_m,
+                gain_region: Some(bid.gain_region),
+            });
+        }
+        Plan::of(targets)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frontier::{FrontierMap, clusters};
+    use crate::grid::testing::grid_from_picture;
+    use crate::policy::testing::robot;
+    use crate::policy::{CurrentTask, RobotView};
+
+    fn simmons() -> Simmons {
+        Simmons { hysteresis_ratio: 0.85, min_gain: 1.0, cost_weight: 1.0, spacing_m: 0.0 }
+    }
+
+    fn plan(policy: &Simmons, grid: &OccupancyGrid, robots: &[RobotView]) -> Vec<Option<Target>> {
+        let frontier = FrontierMap::detect(grid);
+        let clusters = clusters(&frontier, 1);
+        let bids = vec![Vec::new(); robots.len()];
+        let input = PlanningInput { grid, clusters: &clusters, robots, threads: 1, bids: &bids, seed: 0 };
+        policy.plan(&input, &mut CostCache::new(grid)).targets
+    }
+
+    #[test]
+    fn gain_regions_stop_at_walls_and_sensor_range() {
+        let grid = grid_from_picture(&[
+            "#?????#??????", //
+            "#?????#??????", //
+            "#.....#......", //
+        ]);
+        let (gain, rect) = gain_region(&grid, Cell::new(3, 0), 10.0);
+        // The unknown space of the left room only: 5 × 2 cells.
+        assert_eq!(gain, 10.0);
+        assert_eq!(rect, CellRect::new(1, 0, 5, 3));
+        let (near, _) = gain_region(&grid, Cell::new(3, 0), 1.0);
+        assert_eq!(near, 1.0, "only the cell right above is within range");
+    }
+
+    /// Simmons et al. 2000, §4.2: "two robots are tasked to explore adjacent
+    /// rooms": a known wall separates their gain regions, so neither
+    /// discounts the other and both keep their own room.
+    #[test]
+    fn robots_in_adjacent_rooms_keep_their_rooms() {
+        // The rooms connect through the bottom row.
+        let grid = grid_from_picture(&[
+            "###########", //
+            "#????#????#", //
+            "#????#????#", //
+            "#....#....#", //
+            "#.........#", //
+            "###########", //
+        ]);
+        let robots = [robot(0, Cell::new(2, 1), 5.0), robot(1, Cell::new(7, 1), 5.0)];
+        let targets = plan(&simmons(), &grid, &robots);
+        let left = targets[0].unwrap().cell;
+        let right = targets[1].unwrap().cell;
+        assert!(left.x < 5 && right.x > 5, "{left:?} {right:?}");
+    }
+
+    /// §4.2's hysteresis: once a robot has seen most of its room, the rest
+    /// of the room is worth less than a frontier elsewhere; dividing the gain
+    /// inside its current task's region by 0.85 keeps it on its room.
+    #[test]
+    fn hysteresis_keeps_a_robot_on_its_room() {
+        // Left: a room with 10 unknown cells left; right, behind a door, 11.
+        let grid = grid_from_picture(&[
+            "#############", //
+            "#?????#??????", //
+            "#?????#?????#", //
+            "#.....#.....#", //
+            "#...........#", //
+            "#############", //
+        ]);
+        let at = Cell::new(3, 1);
+        let mut r = robot(0, at, 10.0);
+        let fresh = plan(&Simmons { cost_weight: 0.0, ..simmons() }, &grid, std::slice::from_ref(&r));
+        let elsewhere = fresh[0].unwrap().cell;
+        assert!(elsewhere.x > 6, "without hysteresis the bigger region wins: {elsewhere:?}");
+        r.current = Some(CurrentTask { target: Cell::new(3, 2), gain_region: Some(CellRect::new(1, 2, 5, 3)) });
+        let kept = plan(&Simmons { cost_weight: 0.0, ..simmons() }, &grid, &[r]);
+        assert!(kept[0].unwrap().cell.x < 6, "hysteresis keeps the room: {:?}", kept[0]);
+    }
+
+    #[test]
+    fn overlapping_gain_regions_are_discounted_and_small_gains_leave_robots_idle() {
+        // One small unknown pocket: the second robot's bid there is fully
+        // covered by the first's region, so it stays idle.
+        let grid = grid_from_picture(&[
+            "#####", //
+            "#???#", //
+            "#...#", //
+            "#...#", //
+            "#####", //
+        ]);
+        let robots = [robot(0, Cell::new(1, 1), 5.0), robot(1, Cell::new(3, 1), 5.0)];
+        let targets = plan(&simmons(), &grid, &robots);
+        assert_eq!(targets.iter().filter(|t| t.is_some()).count(), 1, "{targets:?}");
+    }
+
+    #[test]
+    fn spacing_thins_bid_cells() {
+        let cells: Vec<Cell> = (0..10).map(|x| Cell::new(x, 0)).collect();
+        assert_eq!(spaced(&cells, 3.0), vec![Cell::new(0, 0), Cell::new(3, 0), Cell::new(6, 0), Cell::new(9, 0)]);
+    }
+}

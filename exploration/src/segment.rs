@@ -1,0 +1,652 @@
+//! Segmentation of the explored map into rooms and corridors.
+//!
+//! Wurm, Stachniss & Burgard 2008, §IV: the Voronoi graph of the explored
+//! free space is found by skeletonizing its Euclidean distance transform;
+//! the graph is cut at critical points, nodes of degree 2 where the
+//! clearance (distance to the closest obstacle) is a local minimum, as in
+//! doorways (Thrun 1998), keeping only those that lead from known into
+//! unknown space; the free space splits into segments between them.
+//!
+//! Wurm et al. further ask a critical point to neighbour a junction of degree
+//! 3. A thinned pixel skeleton loses the short spurs into room corners that
+//! make those junctions in a true Voronoi graph (a rectangular room thins to
+//! a line), so that test would reject most doors; instead the clearance must
+//! rise by a margin on both sides of the point along the skeleton, which
+//! rejects the same false positives: the small wiggles of clearance along
+//! corridors.
+//!
+//! - [`distance_transform`]: exact squared Euclidean distance transform
+//!   (Felzenszwalb & Huttenlocher 2012), linear time.
+//! - [`skeletonize`]: Zhang & Suen 1984 thinning, visiting only the pixels
+//!   next to ones just removed.
+//! - [`segment`]: critical points and segments of an occupancy grid.
+
+use std::collections::VecDeque;
+
+use crate::grid::{Cell, CellClass, CellRect, GridFrame, NEIGHBOURS_8, OccupancyGrid};
+
+/// Squared Euclidean distance, in cells², from every `true` cell of a
+/// row-major `width × height` mask to the nearest `false` cell; 0 on `false`
+/// cells; `u32::MAX` where the mask holds no `false` cell at all. Cells
+/// beyond the edge do not count as `false` (scipy's
+/// `distance_transform_edt` convention).
+///
+/// Felzenszwalb & Huttenlocher 2012: a column pass, then the lower envelope
+/// of parabolas along each row. Complexity: O(W·H).
+pub fn distance_transform(mask: &[bool], width: usize, height: usize) -> Vec<u32> {
+    assert_eq!(mask.len(), width * height, "one flag per cell");
+    const FAR: u64 = u64::MAX / 4;
+    // Column pass, as row sweeps: vertical distance to the nearest `false`.
+    let mut vertical = vec![u32::MAX; mask.len()];
+    let mut run = vec![u32::MAX; width];
+    for y in 0..height {
+        let row = &mask[y * width..(y + 1) * width];
+        for (x, r) in run.iter_mut().enumerate() {
+            *r = if row[x] { r.saturating_add(1) } else { 0 };
+        }
+        vertical[y * width..(y + 1) * width].copy_from_slice(&run);
+    }
+    run.fill(u32::MAX);
+    for y in (0..height).rev() {
+        let row = &mask[y * width..(y + 1) * width];
+        let out = &mut vertical[y * width..(y + 1) * width];
+        for x in 0..width {
+            run[x] = if row[x] { run[x].saturating_add(1) } else { 0 };
+            out[x] = out[x].min(run[x]);
+        }
+    }
+    // Row pass: lower envelope of the parabolas (x − q)² + g(q).
+    let mut out = vec![0u32; mask.len()];
+    let mut g = vec![0u64; width];
+    let mut hull = vec![0usize; width];
+    let mut bounds = vec![0f64; width + 1];
+    for y in 0..height {
+        let vrow = &vertical[y * width..(y + 1) * width];
+        for (gx, &v) in g.iter_mut().zip(vrow) {
+            *gx = if v == u32::MAX { FAR } else { u64::from(v) * u64::from(v) };
+        }
+        let mut k = 0usize;
+        let mut count = 0usize;
+        for q in 0..width {
+            if g[q] >= FAR {
+                continue;
+            }
+            if count == 0 {
+                hull[0] = q;
+                bounds[0] = f64::NEG_INFINITY;
+                bounds[1] = f64::INFINITY;
+                count = 1;
+                k = 0;
+                continue;
+            }
+            loop {
+                let p = hull[k];
+                let s =
+                    ((g[q] as f64 + (q * q) as f64) - (g[p] as f64 + (p * p) as f64)) / (2.0 * (q as f64 - p as f64));
+                if s <= bounds[k] && k > 0 {
+                    k -= 1;
+                    continue;
+                }
+                if s <= bounds[k] {
+                    // k == 0: the new parabola dominates everything.
+                    hull[0] = q;
+                    bounds[0] = f64::NEG_INFINITY;
+                    bounds[1] = f64::INFINITY;
+                    break;
+                }
+                k += 1;
+                hull[k] = q;
+                bounds[k] = s;
+                bounds[k + 1] = f64::INFINITY;
+                break;
+            }
+            count = k + 1;
+        }
+        let row_out = &mut out[y * width..(y + 1) * width];
+        if count == 0 {
+            row_out.fill(u32::MAX);
+            continue;
+        }
+        let mut k = 0usize;
+        for (x, o) in row_out.iter_mut().enumerate() {
+            while bounds[k + 1] < x as f64 {
+                k += 1;
+            }
+            let p = hull[k];
+            let dx = x.abs_diff(p) as u64;
+            *o = u32::try_from(dx * dx + g[p]).unwrap_or(u32::MAX);
+        }
+    }
+    out
+}
+
+/// The Zhang & Suen deletion tables: for each 8-neighbour code (bit k set
+/// when neighbour P(k+2) is set, P2 = north, clockwise), whether the pixel
+/// may go in the first and the second sub-iteration.
+fn deletion_tables() -> ([bool; 256], [bool; 256]) {
+    let mut first = [false; 256];
+    let mut second = [false; 256];
+    for code in 0..256usize {
+        let p: [bool; 8] = std::array::from_fn(|k| code >> k & 1 == 1);
+        let (p2, p3, p4, p5, p6, p7, p8, p9) = (p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]);
+        let neighbours = p.iter().filter(|&&b| b).count();
+        let transitions = (0..8).filter(|&k| !p[k] && p[(k + 1) % 8]).count();
+        let _ = (p3, p5, p7, p9);
+        let base = (2..=6).contains(&neighbours) && transitions == 1;
+        first[code] = base && !(p2 && p4 && p6) && !(p4 && p6 && p8);
+        second[code] = base && !(p2 && p4 && p8) && !(p2 && p6 && p8);
+    }
+    (first, second)
+}
+
+/// Thins the `true` region of a row-major mask to a one-pixel-wide skeleton
+/// with its topology (Zhang & Suen 1984). Rows are image rows: P2, the first
+/// neighbour, is row − 1. Cells beyond the edge count as `false`.
+///
+/// Complexity: O(W·H) plus O(1) per removed pixel's neighbours.
+pub fn skeletonize(mask: &[bool], width: usize, height: usize) -> Vec<bool> {
+    assert_eq!(mask.len(), width * height, "one flag per cell");
+    let stride = width + 2;
+    let mut image = vec![false; stride * (height + 2)];
+    for y in 0..height {
+        image[(y + 1) * stride + 1..(y + 1) * stride + 1 + width].copy_from_slice(&mask[y * width..(y + 1) * width]);
+    }
+    let (first, second) = deletion_tables();
+    // Neighbour offsets P2..P9: north, north-east, east, ..., north-west.
+    let offsets: [isize; 8] = [
+        -(stride as isize),
+        -(stride as isize) + 1,
+        1,
+        stride as isize + 1,
+        stride as isize,
+        stride as isize - 1,
+        -1,
+        -(stride as isize) - 1,
+    ];
+    let code = |image: &[bool], i: usize| {
+        offsets
+            .iter()
+            .enumerate()
+            .fold(0usize, |acc, (k, &o)| acc | (usize::from(image[(i as isize + o) as usize]) << k))
+    };
+    // Only pixels with a background neighbour can ever be deleted, and a
+    // pixel's fate changes only when a neighbour goes: a pixel is looked at
+    // until it has survived both sub-iterations with its neighbourhood intact.
+    let mut candidates: Vec<usize> = (0..image.len()).filter(|&i| image[i] && code(&image, i) != 0xFF).collect();
+    // The sub-iteration (counted from 1) in which each pixel's neighbourhood last changed.
+    let mut changed_at = vec![0u32; image.len()];
+    let mut queued = vec![false; image.len()];
+    let mut doomed = Vec::new();
+    let mut next = Vec::new();
+    let mut pass = 0u32;
+    let mut quiet_passes = 0;
+    while quiet_passes < 2 && !candidates.is_empty() {
+        pass += 1;
+        let table = if pass % 2 == 1 { &first } else { &second };
+        doomed.clear();
+        doomed.extend(candidates.iter().copied().filter(|&i| table[code(&image, i)]));
+        for &i in &doomed {
+            image[i] = false;
+        }
+        quiet_passes = if doomed.is_empty() { quiet_passes + 1 } else { 0 };
+        next.clear();
+        for &d in &doomed {
+            for o in offsets {
+                let n = (d as isize + o) as usize;
+                changed_at[n] = pass;
+                if image[n] && !queued[n] {
+                    queued[n] = true;
+                    next.push(n);
+                }
+            }
+        }
+        for &i in &candidates {
+            // Survived this pass; keep it until the other table has seen it too.
+            if image[i] && !queued[i] && pass - changed_at[i] < 2 {
+                queued[i] = true;
+                next.push(i);
+            }
+        }
+        for &i in &next {
+            queued[i] = false;
+        }
+        std::mem::swap(&mut candidates, &mut next);
+    }
+    let mut out = vec![false; width * height];
+    for y in 0..height {
+        out[y * width..(y + 1) * width].copy_from_slice(&image[(y + 1) * stride + 1..(y + 1) * stride + 1 + width]);
+    }
+    out
+}
+
+/// A cut of the free space at a narrow passage.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CriticalPoint {
+    /// The skeleton cell.
+    pub cell: Cell,
+    /// Its distance to the closest obstacle, cells.
+    pub clearance: f64,
+}
+
+/// A segment of the explored free space.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Segment {
+    /// Its label in [`Segmentation::labels`] (from 1).
+    pub id: u32,
+    /// Number of free cells.
+    pub cells: usize,
+    /// Its bounding rectangle.
+    pub bounds: CellRect,
+    /// Frontier cells inside it (unexplored space it leads to).
+    pub frontier: Vec<Cell>,
+}
+
+/// The segments of a map and the critical points between them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Segmentation {
+    /// The grid it was computed on.
+    pub frame: GridFrame,
+    /// Per cell, row-major: the segment label, 0 outside the free space.
+    pub labels: Vec<u32>,
+    /// The segments, by label.
+    pub segments: Vec<Segment>,
+    /// The cuts kept between segments.
+    pub critical_points: Vec<CriticalPoint>,
+}
+
+impl Segmentation {
+    /// The segment of a cell, if it has one.
+    pub fn segment_of(&self, cell: Cell) -> Option<u32> {
+        if !self.frame.contains(cell) {
+            return None;
+        }
+        let label = self.labels[self.frame.index(cell)];
+        (label != 0).then_some(label)
+    }
+}
+
+/// Segments the explored free space of `grid` (Wurm et al. 2008, §IV).
+///
+/// Obstacles, unknown and uncertain cells, and the grid's edge bound the
+/// free space. A skeleton cell of degree 2 is a critical point when, along
+/// the skeleton on both sides, the clearance rises by at least `min_drop`
+/// cells; of nearby critical points the narrowest stays. A critical point
+/// cuts the free space with a disc of its clearance; it is kept only if a
+/// segment beside it holds frontier cells, i.e. it leads from known into
+/// unknown space. Segments smaller than `min_cells` merge into a neighbour.
+///
+/// Complexity: O(W·H), plus a short walk along the skeleton per local minimum.
+pub fn segment(grid: &OccupancyGrid, frontier: &[Cell], min_drop: f64, min_cells: usize) -> Segmentation {
+    let frame = *grid.frame();
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    let free: Vec<bool> = grid.cells().iter().map(|&v| crate::grid::classify(v) == CellClass::Free).collect();
+    // The grid's edge is a wall: pad with a background border.
+    let (pw, ph) = (w + 2, h + 2);
+    let mut padded = vec![false; pw * ph];
+    for y in 0..h {
+        padded[(y + 1) * pw + 1..(y + 1) * pw + 1 + w].copy_from_slice(&free[y * w..(y + 1) * w]);
+    }
+    let squared = distance_transform(&padded, pw, ph);
+    let skeleton = skeletonize(&padded, pw, ph);
+    let clearance = |x: usize, y: usize| f64::from(squared[(y + 1) * pw + x + 1]).sqrt();
+    let on_skeleton = |x: i64, y: i64| {
+        x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h && skeleton[(y as usize + 1) * pw + x as usize + 1]
+    };
+    let ring: [(i64, i64); 8] = [(0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1), (-1, 0), (-1, 1)];
+    let crossing = |x: i64, y: i64| {
+        (0..8)
+            .filter(|&k| {
+                let (ax, ay) = ring[k];
+                let (bx, by) = ring[(k + 1) % 8];
+                !on_skeleton(x + ax, y + ay) && on_skeleton(x + bx, y + by)
+            })
+            .count()
+    };
+    // Critical points: skeleton cells of degree 2 (crossing number 2) whose
+    // clearance is a local minimum: along the skeleton, within `reach`
+    // cells on each side, the clearance rises by at least `min_drop`.
+    let reach = (3.0 * min_drop).max(10.0) as usize;
+    let mut candidates: Vec<CriticalPoint> = Vec::new();
+    for y in 0..h as i64 {
+        for x in 0..w as i64 {
+            if !on_skeleton(x, y) || crossing(x, y) != 2 {
+                continue;
+            }
+            let here = clearance(x as usize, y as usize);
+            let neighbours: Vec<(i64, i64)> =
+                ring.iter().map(|&(dx, dy)| (x + dx, y + dy)).filter(|&(nx, ny)| on_skeleton(nx, ny)).collect();
+            // A cheap first test: no skeleton neighbour is narrower.
+            if neighbours.iter().any(|&(nx, ny)| clearance(nx as usize, ny as usize) < here) {
+                continue;
+            }
+            // Split the neighbours into the two sides (ring order: runs of skeleton cells).
+            let mut sides: Vec<Vec<(i64, i64)>> = Vec::new();
+            for k in 0..8 {
+                let (dx, dy) = ring[k];
+                let (px, py) = ring[(k + 7) % 8];
+                if on_skeleton(x + dx, y + dy) {
+                    if !on_skeleton(x + px, y + py) || sides.is_empty() {
+                        sides.push(Vec::new());
+                    }
+                    if let Some(side) = sides.last_mut() {
+                        side.push((x + dx, y + dy));
+                    }
+                }
+            }
+            if sides.len() > 2 {
+                // The first and last runs wrap around the ring.
+                let last = sides.pop().unwrap_or_default();
+                sides[0].extend(last);
+            }
+            if sides.len() != 2 {
+                continue;
+            }
+            let widest_within_reach = |start: &[(i64, i64)]| {
+                let mut visited = std::collections::HashSet::new();
+                visited.insert((x, y));
+                let mut queue: VecDeque<((i64, i64), usize)> = start.iter().map(|&c| (c, 1)).collect();
+                for &c in start {
+                    visited.insert(c);
+                }
+                let mut widest = f64::NEG_INFINITY;
+                while let Some(((cx, cy), d)) = queue.pop_front() {
+                    widest = widest.max(clearance(cx as usize, cy as usize));
+                    if d >= reach {
+                        continue;
+                    }
+                    for &(dx, dy) in &ring {
+                        let n = (cx + dx, cy + dy);
+                        if on_skeleton(n.0, n.1) && visited.insert(n) {
+                            queue.push_back((n, d + 1));
+                        }
+                    }
+                }
+                widest
+            };
+            if sides.iter().all(|side| widest_within_reach(side) - here >= min_drop) {
+                candidates.push(CriticalPoint { cell: Cell::new(x as i32, y as i32), clearance: here });
+            }
+        }
+    }
+    // One critical point per narrow passage: the narrowest, then the first.
+    candidates.sort_by(|a, b| {
+        a.clearance.total_cmp(&b.clearance).then(a.cell.y.cmp(&b.cell.y)).then(a.cell.x.cmp(&b.cell.x))
+    });
+    let mut chosen: Vec<CriticalPoint> = Vec::new();
+    for c in candidates {
+        if chosen.iter().all(|k| k.cell.distance(c.cell) > 2.0 * (k.clearance + c.clearance).max(2.0)) {
+            chosen.push(c);
+        }
+    }
+    let candidates = chosen;
+    let mut frontier_mask = vec![false; w * h];
+    for c in frontier {
+        if frame.contains(*c) {
+            frontier_mask[frame.index(*c)] = true;
+        }
+    }
+    // Cut at every candidate, then keep only the cuts that lead into unknown space.
+    let first = split(&frame, &free, &candidates, &frontier_mask, min_cells);
+    let kept: Vec<CriticalPoint> = candidates
+        .iter()
+        .filter(|cp| {
+            first.adjacent_labels(cp).iter().any(|&l| first.frontier_counts.get(l as usize).copied().unwrap_or(0) > 0)
+        })
+        .copied()
+        .collect();
+    let final_split =
+        if kept.len() == candidates.len() { first } else { split(&frame, &free, &kept, &frontier_mask, min_cells) };
+    let mut segments: Vec<Segment> = (1..final_split.count as u32 + 1)
+        .map(|id| Segment { id, cells: 0, bounds: CellRect::new(0, 0, 0, 0), frontier: Vec::new() })
+        .collect();
+    for (i, &label) in final_split.labels.iter().enumerate() {
+        if label == 0 {
+            continue;
+        }
+        let cell = frame.cell(i);
+        let s = &mut segments[label as usize - 1];
+        s.bounds = if s.cells == 0 { CellRect::new(cell.x, cell.y, 1, 1) } else { s.bounds.including(cell) };
+        s.cells += 1;
+        if frontier_mask[i] {
+            s.frontier.push(cell);
+        }
+    }
+    Segmentation { frame, labels: final_split.labels, segments, critical_points: kept }
+}
+
+struct Split {
+    frame: GridFrame,
+    labels: Vec<u32>,
+    count: usize,
+    /// Frontier cells per label (index 0 unused).
+    frontier_counts: Vec<usize>,
+}
+
+impl Split {
+    /// The labels of the cells just around a critical point's cut.
+    fn adjacent_labels(&self, cp: &CriticalPoint) -> Vec<u32> {
+        let r = cp.clearance.ceil() as i32 + 2;
+        let mut labels: Vec<u32> = CellRect::new(cp.cell.x - r, cp.cell.y - r, (2 * r + 1) as u32, (2 * r + 1) as u32)
+            .cells()
+            .filter(|c| self.frame.contains(*c))
+            .map(|c| self.labels[self.frame.index(c)])
+            .filter(|&l| l != 0)
+            .collect();
+        labels.sort_unstable();
+        labels.dedup();
+        labels
+    }
+}
+
+/// Labels the free cells minus the cuts, then gives the cut cells (and
+/// segments below `min_cells`) to their neighbours.
+fn split(frame: &GridFrame, free: &[bool], cuts: &[CriticalPoint], frontier: &[bool], min_cells: usize) -> Split {
+    let mut blocked = vec![false; free.len()];
+    for cp in cuts {
+        let r = cp.clearance + 1.0;
+        let reach = r.ceil() as i32;
+        for dy in -reach..=reach {
+            for dx in -reach..=reach {
+                let c = Cell::new(cp.cell.x + dx, cp.cell.y + dy);
+                if frame.contains(c) && f64::from(dx * dx + dy * dy) <= r * r {
+                    blocked[frame.index(c)] = true;
+                }
+            }
+        }
+    }
+    let mut labels = vec![0u32; free.len()];
+    let mut sizes = vec![0usize];
+    for start in 0..free.len() {
+        if !free[start] || blocked[start] || labels[start] != 0 {
+            continue;
+        }
+        let id = sizes.len() as u32;
+        let mut size = 0;
+        let mut stack = vec![start];
+        labels[start] = id;
+        while let Some(i) = stack.pop() {
+            size += 1;
+            let c = frame.cell(i);
+            for (dx, dy) in &NEIGHBOURS_8[..4] {
+                let n = Cell::new(c.x + dx, c.y + dy);
+                if frame.contains(n) {
+                    let j = frame.index(n);
+                    if free[j] && !blocked[j] && labels[j] == 0 {
+                        labels[j] = id;
+                        stack.push(j);
+                    }
+                }
+            }
+        }
+        sizes.push(size);
+    }
+    // Small segments give their cells back: unlabel them, then grow every
+    // big segment into the unlabelled free cells, breadth first.
+    for l in labels.iter_mut() {
+        if *l != 0 && sizes[*l as usize] < min_cells {
+            *l = 0;
+        }
+    }
+    let mut queue: VecDeque<usize> = (0..free.len()).filter(|&i| labels[i] != 0).collect();
+    while let Some(i) = queue.pop_front() {
+        let c = frame.cell(i);
+        for (dx, dy) in &NEIGHBOURS_8[..4] {
+            let n = Cell::new(c.x + dx, c.y + dy);
+            if frame.contains(n) {
+                let j = frame.index(n);
+                if free[j] && labels[j] == 0 {
+                    labels[j] = labels[i];
+                    queue.push_back(j);
+                }
+            }
+        }
+    }
+    // Renumber densely from 1.
+    let mut renumber = vec![0u32; sizes.len()];
+    let mut count = 0usize;
+    for l in labels.iter_mut() {
+        if *l == 0 {
+            continue;
+        }
+        if renumber[*l as usize] == 0 {
+            count += 1;
+            renumber[*l as usize] = count as u32;
+        }
+        *l = renumber[*l as usize];
+    }
+    let mut frontier_counts = vec![0usize; count + 1];
+    for (i, &l) in labels.iter().enumerate() {
+        if l != 0 && frontier[i] {
+            frontier_counts[l as usize] += 1;
+        }
+    }
+    Split { frame: *frame, labels, count, frontier_counts }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::testing::grid_from_picture;
+
+    fn brute_force_squared(mask: &[bool], w: usize, h: usize) -> Vec<u32> {
+        let background: Vec<(usize, usize)> = (0..w * h).filter(|&i| !mask[i]).map(|i| (i % w, i / w)).collect();
+        (0..w * h)
+            .map(|i| {
+                if !mask[i] {
+                    return 0;
+                }
+                let (x, y) = (i % w, i / w);
+                background
+                    .iter()
+                    .map(|&(bx, by)| (bx.abs_diff(x) * bx.abs_diff(x) + by.abs_diff(y) * by.abs_diff(y)) as u32)
+                    .min()
+                    .unwrap_or(u32::MAX)
+            })
+            .collect()
+    }
+
+    proptest::proptest! {
+        #![proptest_config(crate::testing::seeded_proptest(200))]
+        /// The linear-time transform equals the brute-force minimum.
+        #[test]
+        fn distance_transform_is_exact(w in 1usize..20, h in 1usize..20, seed in 0u64..u64::MAX, density in 0u64..10) {
+            let mut rng = crate::rng::SplitMix64::new(seed);
+            let mask: Vec<bool> = (0..w * h).map(|_| rng.below(10) >= density).collect();
+            proptest::prop_assert_eq!(distance_transform(&mask, w, h), brute_force_squared(&mask, w, h));
+        }
+
+        /// Thinning never adds a pixel and never splits a region in two.
+        /// (Zhang & Suen may erase a region as small as a 2×2 square.)
+        #[test]
+        fn skeletons_never_split_a_region(w in 3usize..24, h in 3usize..24, seed in 0u64..u64::MAX) {
+            let mut rng = crate::rng::SplitMix64::new(seed);
+            let mask: Vec<bool> = (0..w * h).map(|_| rng.below(10) < 8).collect();
+            let skeleton = skeletonize(&mask, w, h);
+            proptest::prop_assert!(skeleton.iter().zip(&mask).all(|(&s, &m)| !s || m));
+            let labels = |m: &[bool]| {
+                let mut label = vec![0usize; m.len()];
+                let mut n = 0;
+                for s in 0..m.len() {
+                    if !m[s] || label[s] != 0 { continue; }
+                    n += 1;
+                    let mut stack = vec![s];
+                    label[s] = n;
+                    while let Some(i) = stack.pop() {
+                        let (x, y) = ((i % w) as i64, (i / w) as i64);
+                        for (dx, dy) in NEIGHBOURS_8 {
+                            let (nx, ny) = (x + i64::from(dx), y + i64::from(dy));
+                            if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 { continue; }
+                            let j = ny as usize * w + nx as usize;
+                            if m[j] && label[j] == 0 { label[j] = n; stack.push(j); }
+                        }
+                    }
+                }
+                label
+            };
+            let (regions, pieces) = (labels(&mask), labels(&skeleton));
+            let mut piece_of_region = std::collections::HashMap::new();
+            for i in 0..w * h {
+                if skeleton[i] {
+                    let piece = *piece_of_region.entry(regions[i]).or_insert(pieces[i]);
+                    proptest::prop_assert_eq!(piece, pieces[i], "region {} split", regions[i]);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_thick_bar_thins_to_a_line() {
+        let (w, h) = (20, 7);
+        let mask: Vec<bool> = (0..w * h).map(|i| (1..6).contains(&(i / w)) && (1..19).contains(&(i % w))).collect();
+        let skeleton = skeletonize(&mask, w, h);
+        let rows: Vec<usize> = (0..w * h).filter(|&i| skeleton[i]).map(|i| i / w).collect();
+        assert!(rows.iter().all(|&r| r == 3), "the bar's skeleton runs along its middle row: {rows:?}");
+        assert!(rows.len() >= 10);
+    }
+
+    #[test]
+    fn a_door_between_two_rooms_is_a_critical_point() {
+        // Two rooms joined by a one-cell door; unknown space beyond the right room.
+        let grid = grid_from_picture(&[
+            "###################?", //
+            "#.......#.........#?", //
+            "#.......#..........?", //
+            "#.......#.........#?", //
+            "#..................#", //
+            "#.......#.........#?", //
+            "#.......#.........#?", //
+            "#.......#.........#?", //
+            "###################?", //
+        ]);
+        let frontier = crate::frontier::FrontierMap::detect(&grid).cells();
+        assert!(!frontier.is_empty());
+        let s = segment(&grid, &frontier, 1.0, 4);
+        assert_eq!(s.segments.len(), 2, "{:?}", s.critical_points);
+        let left = s.segment_of(Cell::new(2, 4)).unwrap();
+        let right = s.segment_of(Cell::new(15, 4)).unwrap();
+        assert_ne!(left, right);
+        assert_eq!(s.critical_points.len(), 1);
+        let door = s.critical_points[0].cell;
+        assert!((7..=9).contains(&door.x) && door.y == 4, "{door:?}");
+        assert!(!s.segments[right as usize - 1].frontier.is_empty());
+    }
+
+    #[test]
+    fn a_cut_that_leads_nowhere_unknown_is_dropped() {
+        // The same two rooms, fully explored: no frontier, one segment.
+        let grid = grid_from_picture(&[
+            "####################", //
+            "#.......#.........##", //
+            "#.......#.........##", //
+            "#.......#.........##", //
+            "#..................#", //
+            "#.......#.........##", //
+            "#.......#.........##", //
+            "#.......#.........##", //
+            "####################", //
+        ]);
+        let s = segment(&grid, &[], 1.0, 4);
+        assert_eq!(s.segments.len(), 1);
+        assert!(s.critical_points.is_empty());
+    }
+}

@@ -1,0 +1,145 @@
+//! Every policy of the papers behind one interface, selectable per mission
+//! and switchable while it runs, through the real service.
+
+mod common;
+
+use client_sim::RunConfig;
+use common::{TestExecutive, bundled_map, create_mission, patch, register, update};
+use exploration_proto::v1 as pb;
+use tonic::Code;
+
+const POLICIES: [&str; 9] =
+    ["nearest", "greedy", "burgard", "burgard-joint", "simmons", "minpos", "segmentation", "hungarian", "colares"];
+
+#[tokio::test]
+async fn the_api_lists_every_policy_and_switches_them_on_a_running_mission() {
+    let dir = tempfile::tempdir().unwrap();
+    let exec = TestExecutive::start(&dir.path().join("x.db")).await;
+    let mut missions = exec.missions();
+    let listed = missions.list_policies(pb::ListPoliciesRequest {}).await.unwrap().into_inner().policies;
+    let names: Vec<&str> = listed.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, POLICIES);
+    for p in &listed {
+        assert!(!p.description.is_empty());
+        for param in &p.params {
+            assert!(param.min <= param.default_value && param.default_value <= param.max, "{}.{}", p.name, param.name);
+        }
+    }
+
+    let mission = create_mission(&mut missions, 60, 40, "burgard").await;
+    let mut fleet = exec.fleet();
+    let robot = register(&mut fleet, mission.id, "r", 0.55, 0.55).await;
+    fleet.update_map(update(robot.id, 1, 0.55, 0.55, vec![patch(0, 0, 20, 15, 0.05)])).await.unwrap();
+    let before = fleet.get_assignment(pb::GetAssignmentRequest { robot_id: robot.id }).await.unwrap().into_inner();
+    assert_eq!(before.policy, "burgard");
+
+    let set = |name: &str, params: &[(&str, f64)]| pb::SetPolicyRequest {
+        mission_id: mission.id,
+        policy: Some(pb::PolicySpec {
+            name: name.into(),
+            params: params.iter().map(|(k, v)| ((*k).to_owned(), *v)).collect(),
+        }),
+        actor: "alice".into(),
+        reason: "trying minpos".into(),
+    };
+    // Bad changes are refused and change nothing.
+    for (request, needle) in [
+        (set("teleport", &[]), "valid policies: nearest, greedy"),
+        (set("minpos", &[("switch_margin", -2.0)]), "must lie in"),
+        (set("minpos", &[("beta", 1.0)]), "its parameters: min_frontier_size, switch_margin"),
+    ] {
+        let status = missions.set_policy(request).await.unwrap_err();
+        assert_eq!(status.code(), Code::InvalidArgument);
+        assert!(status.message().contains(needle), "{}", status.message());
+    }
+    let status = missions
+        .set_policy(pb::SetPolicyRequest { mission_id: 99, ..set("minpos", &[]) })
+        .await
+        .unwrap_err();
+    assert_eq!(status.code(), Code::NotFound);
+    assert!(missions.list_events(pb::ListEventsRequest { mission_id: mission.id }).await.unwrap().into_inner().events.is_empty());
+
+    let changed = missions.set_policy(set("minpos", &[("switch_margin", 2.0)])).await.unwrap().into_inner();
+    let policy = changed.policy.unwrap();
+    assert_eq!(policy.name, "minpos");
+    assert_eq!(policy.params["switch_margin"], 2.0);
+    // The next replanning uses it: the robot's assignment now comes from minpos.
+    let after = fleet.get_assignment(pb::GetAssignmentRequest { robot_id: robot.id }).await.unwrap().into_inner();
+    assert_eq!(after.policy, "minpos");
+    assert!(after.version > before.version || after.task_id == before.task_id);
+    let events = missions.list_events(pb::ListEventsRequest { mission_id: mission.id }).await.unwrap().into_inner().events;
+    assert_eq!(events.len(), 1);
+    assert_eq!(events[0].kind, "policy_changed");
+    assert_eq!(events[0].actor, "alice");
+    assert!(events[0].detail.starts_with("burgard -> minpos"), "{}", events[0].detail);
+    assert!(events[0].detail.contains("trying minpos"), "{}", events[0].detail);
+
+    // The change survives a restart.
+    exec.stop().await;
+    let exec = TestExecutive::start(&dir.path().join("x.db")).await;
+    let reloaded = exec.missions().get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_eq!(reloaded.policy.unwrap().name, "minpos");
+    exec.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_segmentation_is_kept_and_served() {
+    let dir = tempfile::tempdir().unwrap();
+    let exec = TestExecutive::start(&dir.path().join("seg.db")).await;
+    let mut config = RunConfig::new(bundled_map("nav2_depot"), 2, "segmentation");
+    config.server = Some(exec.url.clone());
+    config.cell_size = Some(0.25);
+    config.max_steps = 60;
+    let report = client_sim::run(&config).await.unwrap();
+    let segmentation = exec
+        .missions()
+        .get_segmentation(pb::GetSegmentationRequest { mission_id: report.mission_id, include_labels: true })
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(segmentation.computed_at.is_some());
+    assert!(!segmentation.segments.is_empty());
+    let frame = segmentation.frame.unwrap();
+    assert_eq!(segmentation.labels.len(), (frame.width * frame.height * 4) as usize);
+    let labelled = segmentation.labels.chunks_exact(4).filter(|c| *c != [0, 0, 0, 0]).count() as u64;
+    assert_eq!(labelled, segmentation.segments.iter().map(|s| s.cells).sum::<u64>());
+    // Without labels, only the summary; a mission never segmented has none.
+    let plain = exec
+        .missions()
+        .get_segmentation(pb::GetSegmentationRequest { mission_id: report.mission_id, include_labels: false })
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(plain.labels.is_empty());
+    let other = create_mission(&mut exec.missions(), 10, 10, "burgard").await;
+    let none = exec
+        .missions()
+        .get_segmentation(pb::GetSegmentationRequest { mission_id: other.id, include_labels: false })
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(none.computed_at.is_none() && none.segments.is_empty());
+    exec.stop().await;
+}
+
+/// Every policy completes missions on the bundled maps with 1, 3 and 8
+/// robots (coarse cells keep the debug build quick; the full matrix at
+/// 0.1 m is `experiments/policy-matrix.toml`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_policy_completes_the_bundled_maps_with_1_3_and_8_robots() {
+    let mut failures = Vec::new();
+    for (k, policy) in POLICIES.iter().enumerate() {
+        for (j, robots) in [1usize, 3, 8].into_iter().enumerate() {
+            let map = ["mrpb_maze", "nav2_depot", "mrpb_shopping_mall", "nav2_warehouse"][(k + j) % 4];
+            let mut config = RunConfig::new(bundled_map(map), robots, policy);
+            config.cell_size = Some(0.4);
+            config.seed = (k * 3 + j) as u64;
+            let report = client_sim::run(&config).await.unwrap();
+            if !report.completed {
+                failures.push(format!("{policy} × {robots} on {map}: {}", report.ended));
+            }
+            assert_eq!(report.updates_acknowledged, report.map_updates);
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
