@@ -12,6 +12,7 @@ use exploration::cost::{Corners, TraversalMap, cost_map_with};
 use exploration::frontier::{Adjacency, FrontierMap, clusters};
 use exploration::grid::{Cell, GridFrame, OccupancyGrid};
 use exploration::math::Point2;
+use exploration::segment::{distance_transform, padded_skeleton, skeletonize};
 
 mod gen_v1;
 
@@ -73,6 +74,23 @@ fn frontier(c: &mut Criterion) {
     c.bench_function("frontier_label_centroids 2000x2000", |b| b.iter(detect));
 }
 
+fn distance_and_skeleton(c: &mut Criterion) {
+    let n = 2000;
+    let free: Vec<bool> = gen_v1::obstacles(n, n, SEED).iter().map(|&o| !o).collect();
+    let squared = distance_transform(&free, n, n);
+    let sum: f64 = squared.iter().filter(|&&d| d != u32::MAX).map(|&d| f64::from(d).sqrt()).sum();
+    let sum_sq: u64 = squared.iter().filter(|&&d| d != u32::MAX).map(|&d| u64::from(d)).sum();
+    let skeleton = skeletonize(&free, n, n);
+    eprintln!(
+        "check edt 2000x2000: sum {sum:.1} sum_sq_int {sum_sq}; skeleton 2000x2000: skeleton_cells {}",
+        skeleton.iter().filter(|&&s| s).count()
+    );
+    c.bench_function("edt 2000x2000", |b| b.iter(|| distance_transform(black_box(&free), n, n)));
+    c.bench_function("skeletonize 2000x2000", |b| b.iter(|| skeletonize(black_box(&free), n, n)));
+    // What the segmentation runs: one distance transform feeds the thinning.
+    c.bench_function("edt+skeleton 2000x2000", |b| b.iter(|| padded_skeleton(black_box(&free), n, n)));
+}
+
 fn assignment(c: &mut Criterion) {
     for (rows, cols) in [(200, 2000), (1000, 1000)] {
         let (q, f) = gen_v1::lsap(rows, cols, SEED);
@@ -88,6 +106,6 @@ fn assignment(c: &mut Criterion) {
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(10).warm_up_time(std::time::Duration::from_secs(1));
-    targets = costmap, frontier, assignment
+    targets = costmap, frontier, distance_and_skeleton, assignment
 }
 criterion_main!(benches);

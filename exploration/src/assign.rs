@@ -6,7 +6,8 @@
 //! (robots) to distinct columns (targets). We solve it by shortest
 //! augmenting paths with dual potentials (Jonker & Volgenant 1987; the
 //! rectangular form of Crouse 2016, which scipy's `linear_sum_assignment`
-//! implements), an O(n²·m) algorithm with the same optimum as the
+//! implements; square matrices start from Jonker & Volgenant's column
+//! reduction and reduction transfer), an O(n²·m) algorithm with the same optimum as the
 //! Hungarian method and far less work in practice. Unequal counts need no
 //! explicit dummy rows: with more columns than rows every row is assigned;
 //! with more rows, the matrix is transposed and surplus rows stay
@@ -119,6 +120,51 @@ pub fn assign_with_dummies(costs: &[f64], rows: usize, cols: usize) -> Result<As
     Ok(Assignment { row_to_col, total })
 }
 
+/// Jonker & Volgenant 1987's initialization of a square matrix: column
+/// reduction (each column's potential is its least cost; the row holding it
+/// takes the column if it has none yet), then reduction transfer (a row that
+/// won exactly one column moves the slack to its own potential). Leaves
+/// feasible potentials with every assigned pair at zero reduced cost, so the
+/// shortest augmenting paths only need to place the rows still free.
+fn reduce_columns(costs: &[f64], n: usize, u: &mut [f64], v: &mut [f64], col4row: &mut [usize], row4col: &mut [usize]) {
+    const NONE: usize = usize::MAX;
+    let mut won = vec![0u32; n];
+    for j in (0..n).rev() {
+        let (mut best, mut at) = (f64::INFINITY, 0);
+        for i in 0..n {
+            let c = costs[i * n + j];
+            if c < best {
+                best = c;
+                at = i;
+            }
+        }
+        v[j] = best;
+        won[at] += 1;
+        if col4row[at] == NONE {
+            col4row[at] = j;
+            row4col[j] = at;
+        }
+    }
+    for i in 0..n {
+        let j1 = col4row[i];
+        if won[i] != 1 || j1 == NONE {
+            continue;
+        }
+        let row = &costs[i * n..(i + 1) * n];
+        let slack = row
+            .iter()
+            .zip(v.iter())
+            .enumerate()
+            .filter(|(j, _)| *j != j1)
+            .map(|(_, (c, vj))| c - vj)
+            .fold(f64::INFINITY, f64::min);
+        if slack.is_finite() {
+            u[i] = slack;
+            v[j1] -= slack;
+        }
+    }
+}
+
 /// Crouse 2016, Algorithm 1 (as in scipy): for each row in turn, a Dijkstra
 /// search over reduced costs finds the shortest augmenting path; dual
 /// potentials keep the reduced costs non-negative. Requires rows ≤ cols.
@@ -135,7 +181,13 @@ fn shortest_augmenting_paths(costs: &[f64], rows: usize, cols: usize) -> Result<
     let mut remaining: Vec<usize> = Vec::with_capacity(cols);
     let mut rows_seen: Vec<usize> = Vec::with_capacity(rows);
     let mut cols_seen: Vec<usize> = Vec::with_capacity(cols);
+    if rows == cols && costs.iter().all(|c| c.is_finite()) {
+        reduce_columns(costs, rows, &mut u, &mut v, &mut col4row, &mut row4col);
+    }
     for current in 0..rows {
+        if col4row[current] != NONE {
+            continue;
+        }
         shortest.fill(f64::INFINITY);
         remaining.clear();
         // Reverse order so that ties favour low column indices after swap_remove.

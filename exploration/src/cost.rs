@@ -297,6 +297,52 @@ pub fn cost_map(traversal: &TraversalMap, sources: &[Cell]) -> CostMap {
 ///
 /// Complexity: O(N) with buckets, O(N log N) with the heap, for N reachable cells.
 pub fn cost_map_with(traversal: &TraversalMap, sources: &[Cell], corners: Corners) -> CostMap {
+    settle_from(traversal, sources, corners, &mut [])
+}
+
+/// A cost map from several sources that also records, for every cell,
+/// which source it is cheapest to reach from: with reversible costs (the
+/// free-space traversal), the source nearest to each cell, from one search
+/// instead of one per cell of interest.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LabelledCostMap {
+    map: CostMap,
+    /// Per padded cell: index into the sources, or `u32::MAX`.
+    labels: Vec<u32>,
+}
+
+impl LabelledCostMap {
+    /// The cost map.
+    pub fn map(&self) -> &CostMap {
+        &self.map
+    }
+
+    /// The index of the source `cell` is cheapest to reach from, if any.
+    pub fn source_of(&self, cell: Cell) -> Option<usize> {
+        if !self.map.frame.contains(cell) {
+            return None;
+        }
+        let label = self.labels[padded_index(&self.map.frame, cell)];
+        (label != u32::MAX).then_some(label as usize)
+    }
+}
+
+/// A [`LabelledCostMap`] from `sources` over `traversal`, without cutting corners.
+///
+/// Complexity: as [`cost_map_with`], one search whatever the number of sources.
+pub fn labelled_cost_map(traversal: &TraversalMap, sources: &[Cell]) -> LabelledCostMap {
+    let mut labels = vec![u32::MAX; traversal.padded.len()];
+    for (k, s) in sources.iter().enumerate() {
+        if traversal.frame.contains(*s) {
+            labels[padded_index(&traversal.frame, *s)] = k as u32;
+        }
+    }
+    let map = settle_from(traversal, sources, Corners::Keep, &mut labels);
+    LabelledCostMap { map, labels }
+}
+
+/// Runs the search; `labels`, when not empty, follow the improvements.
+fn settle_from(traversal: &TraversalMap, sources: &[Cell], corners: Corners, labels: &mut [u32]) -> CostMap {
     let frame = traversal.frame;
     let mut cost = vec![f32::INFINITY; traversal.padded.len()];
     let starts: Vec<usize> = sources.iter().filter(|s| frame.contains(**s)).map(|&s| padded_index(&frame, s)).collect();
@@ -318,10 +364,10 @@ pub fn cost_map_with(traversal: &TraversalMap, sources: &[Cell], corners: Corner
     };
     let bounds = (min_step * orthogonal, max_step * diagonal);
     match (uniform, cut) {
-        (true, true) => settle::<_, true>(&constant, &mut cost, &starts, bounds),
-        (true, false) => settle::<_, false>(&constant, &mut cost, &starts, bounds),
-        (false, true) => settle::<_, true>(&weighted, &mut cost, &starts, bounds),
-        (false, false) => settle::<_, false>(&weighted, &mut cost, &starts, bounds),
+        (true, true) => settle::<_, true>(&constant, &mut cost, labels, &starts, bounds),
+        (true, false) => settle::<_, false>(&constant, &mut cost, labels, &starts, bounds),
+        (false, true) => settle::<_, true>(&weighted, &mut cost, labels, &starts, bounds),
+        (false, false) => settle::<_, false>(&weighted, &mut cost, labels, &starts, bounds),
     }
     CostMap { frame, cost }
 }
@@ -400,7 +446,13 @@ impl Neighbourhood for Uniform<'_> {
 /// Settles every label from `starts`; `steps` is the cheapest and the
 /// dearest single step. Buckets when a small ring holds the step range, a
 /// binary heap otherwise.
-fn settle<N: Neighbourhood, const CUT: bool>(n: &N, cost: &mut [f32], starts: &[usize], steps: (f32, f32)) {
+fn settle<N: Neighbourhood, const CUT: bool>(
+    n: &N,
+    cost: &mut [f32],
+    labels: &mut [u32],
+    starts: &[usize],
+    steps: (f32, f32),
+) {
     // Slightly narrower than the cheapest step, so rounding never puts a
     // relaxed cell into the bucket being drained.
     let width = steps.0 * (1.0 - 1e-5);
@@ -410,13 +462,21 @@ fn settle<N: Neighbourhood, const CUT: bool>(n: &N, cost: &mut [f32], starts: &[
         usize::MAX
     };
     if ring <= 4096 {
-        buckets::<N, CUT>(n, cost, starts, width, ring);
+        buckets::<N, CUT>(n, cost, labels, starts, width, ring);
     } else {
-        heap::<N, CUT>(n, cost, starts);
+        heap::<N, CUT>(n, cost, labels, starts);
     }
 }
 
-fn buckets<N: Neighbourhood, const CUT: bool>(n: &N, cost: &mut [f32], starts: &[usize], width: f32, ring: usize) {
+fn buckets<N: Neighbourhood, const CUT: bool>(
+    n: &N,
+    cost: &mut [f32],
+    labels: &mut [u32],
+    starts: &[usize],
+    width: f32,
+    ring: usize,
+) {
+    let labelled = !labels.is_empty();
     // A power-of-two ring turns the bucket's slot into a mask.
     let ring = ring.next_power_of_two();
     let slot_mask = ring - 1;
@@ -444,6 +504,9 @@ fn buckets<N: Neighbourhood, const CUT: bool>(n: &N, cost: &mut [f32], starts: &
                 n.neighbours::<CUT>(i, here, |j, c| {
                     if c < cost[j] {
                         cost[j] = c;
+                        if labelled {
+                            labels[j] = labels[i];
+                        }
                         rings[(c * per_bucket) as usize & slot_mask].push(j as u32);
                         pending += 1;
                     }
@@ -455,7 +518,8 @@ fn buckets<N: Neighbourhood, const CUT: bool>(n: &N, cost: &mut [f32], starts: &
     }
 }
 
-fn heap<N: Neighbourhood, const CUT: bool>(n: &N, cost: &mut [f32], starts: &[usize]) {
+fn heap<N: Neighbourhood, const CUT: bool>(n: &N, cost: &mut [f32], labels: &mut [u32], starts: &[usize]) {
+    let labelled = !labels.is_empty();
     let mut heap = BinaryHeap::new();
     for &i in starts {
         heap.push(std::cmp::Reverse(key(0.0, i)));
@@ -468,6 +532,9 @@ fn heap<N: Neighbourhood, const CUT: bool>(n: &N, cost: &mut [f32], starts: &[us
         n.neighbours::<CUT>(i, here, |j, c| {
             if c < cost[j] {
                 cost[j] = c;
+                if labelled {
+                    labels[j] = labels[i];
+                }
                 heap.push(std::cmp::Reverse(key(c, j)));
             }
         });
@@ -540,6 +607,20 @@ pub fn shortest_path(frame: &GridFrame, start: Cell, goal: Cell, passable: impl 
         }
     }
     None
+}
+
+/// `f` over `items` on up to `threads` scoped threads, results in order.
+pub fn in_parallel<T: Sync, R: Send>(items: &[T], threads: usize, f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    let threads = threads.clamp(1, items.len().max(1));
+    if threads == 1 {
+        return items.iter().map(&f).collect();
+    }
+    let chunk = items.len().div_ceil(threads);
+    std::thread::scope(|scope| {
+        let handles: Vec<_> =
+            items.chunks(chunk).map(|part| scope.spawn(|| part.iter().map(&f).collect::<Vec<_>>())).collect();
+        handles.into_iter().flat_map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect()
+    })
 }
 
 /// Which traversal a cost map was computed over.
@@ -640,23 +721,10 @@ impl<'g> CostCache<'g> {
         let mut missing: Vec<Cell> = sources.iter().copied().filter(|s| !self.maps.contains_key(&(kind, *s))).collect();
         missing.sort_unstable();
         missing.dedup();
-        let threads = threads.clamp(1, missing.len().max(1));
-        if threads > 1 {
-            let chunk = missing.len().div_ceil(threads);
-            let computed: Vec<(Cell, CostMap)> = std::thread::scope(|scope| {
-                let handles: Vec<_> = missing
-                    .chunks(chunk)
-                    .map(|part| {
-                        let traversal = &traversal;
-                        scope.spawn(move || part.iter().map(|&s| (s, cost_map(traversal, &[s]))).collect::<Vec<_>>())
-                    })
-                    .collect();
-                handles.into_iter().flat_map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect()
-            });
-            for (s, map) in computed {
-                self.computed += 1;
-                self.maps.insert((kind, s), Arc::new(map));
-            }
+        let computed = in_parallel(&missing, threads, |&s| cost_map(&traversal, &[s]));
+        for (s, map) in missing.into_iter().zip(computed) {
+            self.computed += 1;
+            self.maps.insert((kind, s), Arc::new(map));
         }
         sources.iter().map(|&s| self.cost_map(kind, s)).collect()
     }
@@ -754,9 +822,9 @@ mod tests {
                 diagonal: (0.25 * std::f64::consts::SQRT_2) as f32,
             };
             if cut {
-                heap::<_, true>(&n, &mut slow, &[start]);
+                heap::<_, true>(&n, &mut slow, &mut [], &[start]);
             } else {
-                heap::<_, false>(&n, &mut slow, &[start]);
+                heap::<_, false>(&n, &mut slow, &mut [], &[start]);
             }
             for cell in frame.bounds().cells() {
                 let a = fast.cost(cell);
@@ -766,6 +834,25 @@ mod tests {
                     None => proptest::prop_assert!(!b.is_finite()),
                 }
             }
+        }
+    }
+
+    #[test]
+    fn a_labelled_map_tells_the_nearest_source() {
+        let grid = grid_from_picture(&[
+            "...........", //
+            ".#########.", //
+            "...........", //
+        ]);
+        let t = TraversalMap::free_space(&grid, 0.0);
+        let sources = [Cell::new(0, 1), Cell::new(10, 1)];
+        let labelled = labelled_cost_map(&t, &sources);
+        assert_eq!(labelled.source_of(Cell::new(2, 2)), Some(0));
+        assert_eq!(labelled.source_of(Cell::new(8, 0)), Some(1));
+        assert_eq!(labelled.source_of(Cell::new(5, 1)), None, "a wall is reached from nowhere");
+        let plain = cost_map(&t, &sources);
+        for cell in grid.frame().bounds().cells() {
+            assert_eq!(labelled.map().cost(cell), plain.cost(cell));
         }
     }
 

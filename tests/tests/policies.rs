@@ -52,12 +52,17 @@ async fn the_api_lists_every_policy_and_switches_them_on_a_running_mission() {
         assert_eq!(status.code(), Code::InvalidArgument);
         assert!(status.message().contains(needle), "{}", status.message());
     }
-    let status = missions
-        .set_policy(pb::SetPolicyRequest { mission_id: 99, ..set("minpos", &[]) })
-        .await
-        .unwrap_err();
+    let status = missions.set_policy(pb::SetPolicyRequest { mission_id: 99, ..set("minpos", &[]) }).await.unwrap_err();
     assert_eq!(status.code(), Code::NotFound);
-    assert!(missions.list_events(pb::ListEventsRequest { mission_id: mission.id }).await.unwrap().into_inner().events.is_empty());
+    assert!(
+        missions
+            .list_events(pb::ListEventsRequest { mission_id: mission.id })
+            .await
+            .unwrap()
+            .into_inner()
+            .events
+            .is_empty()
+    );
 
     let changed = missions.set_policy(set("minpos", &[("switch_margin", 2.0)])).await.unwrap().into_inner();
     let policy = changed.policy.unwrap();
@@ -67,7 +72,8 @@ async fn the_api_lists_every_policy_and_switches_them_on_a_running_mission() {
     let after = fleet.get_assignment(pb::GetAssignmentRequest { robot_id: robot.id }).await.unwrap().into_inner();
     assert_eq!(after.policy, "minpos");
     assert!(after.version > before.version || after.task_id == before.task_id);
-    let events = missions.list_events(pb::ListEventsRequest { mission_id: mission.id }).await.unwrap().into_inner().events;
+    let events =
+        missions.list_events(pb::ListEventsRequest { mission_id: mission.id }).await.unwrap().into_inner().events;
     assert_eq!(events.len(), 1);
     assert_eq!(events[0].kind, "policy_changed");
     assert_eq!(events[0].actor, "alice");
@@ -77,7 +83,8 @@ async fn the_api_lists_every_policy_and_switches_them_on_a_running_mission() {
     // The change survives a restart.
     exec.stop().await;
     let exec = TestExecutive::start(&dir.path().join("x.db")).await;
-    let reloaded = exec.missions().get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    let reloaded =
+        exec.missions().get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
     assert_eq!(reloaded.policy.unwrap().name, "minpos");
     exec.stop().await;
 }

@@ -7,7 +7,7 @@
 //! one. C_ij is the path length from robot i to the nearest cell of frontier
 //! (cluster) j, which is also the robot's target.
 
-use super::{ClusterCost, Plan, PlanningInput, Policy, Target, cluster_costs, current_target, free_space_cost_maps};
+use super::{ClusterCost, Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
 use crate::cost::CostCache;
 
 pub(super) const NAME: &str = "greedy";
@@ -26,12 +26,7 @@ impl Policy for Greedy {
     }
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
-        let maps = free_space_cost_maps(input, costs);
-        let matrix: Vec<Vec<Option<ClusterCost>>> = maps
-            .iter()
-            .zip(input.robots)
-            .map(|(m, r)| cluster_costs(m, input.clusters, current_target(r), self.switch_margin))
-            .collect();
+        let matrix: Vec<Vec<Option<ClusterCost>>> = cluster_cost_matrix(input, costs, self.switch_margin);
         let m = input.clusters.len();
         let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
         let mut free_frontier = vec![true; m];

@@ -7,7 +7,7 @@
 //! frontiers are offered again to the robots left over (Wurm et al.'s
 //! "duplicating existing targets"); unreachable pairs are forbidden.
 
-use super::{ClusterCost, Plan, PlanningInput, Policy, Target, cluster_costs, current_target, free_space_cost_maps};
+use super::{ClusterCost, Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
 use crate::assign::assign_with_dummies;
 use crate::cost::CostCache;
 
@@ -27,12 +27,7 @@ impl Policy for Hungarian {
     }
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
-        let maps = free_space_cost_maps(input, costs);
-        let matrix: Vec<Vec<Option<ClusterCost>>> = maps
-            .iter()
-            .zip(input.robots)
-            .map(|(m, r)| cluster_costs(m, input.clusters, current_target(r), self.switch_margin))
-            .collect();
+        let matrix: Vec<Vec<Option<ClusterCost>>> = cluster_cost_matrix(input, costs, self.switch_margin);
         let m = input.clusters.len();
         let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
         if m == 0 {

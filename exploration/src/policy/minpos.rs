@@ -11,7 +11,7 @@
 //! large teams. The target is the frontier's cell nearest to the robot,
 //! where descending the frontier's potential field leads.
 
-use super::{ClusterCost, Plan, PlanningInput, Policy, Target, cluster_costs, current_target, free_space_cost_maps};
+use super::{ClusterCost, Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
 use crate::cost::CostCache;
 
 pub(super) const NAME: &str = "minpos";
@@ -31,12 +31,7 @@ impl Policy for MinPos {
     }
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
-        let maps = free_space_cost_maps(input, costs);
-        let matrix: Vec<Vec<Option<ClusterCost>>> = maps
-            .iter()
-            .zip(input.robots)
-            .map(|(m, r)| cluster_costs(m, input.clusters, current_target(r), self.switch_margin))
-            .collect();
+        let matrix: Vec<Vec<Option<ClusterCost>>> = cluster_cost_matrix(input, costs, self.switch_margin);
         let n = matrix.len();
         let targets = (0..n)
             .map(|i| {

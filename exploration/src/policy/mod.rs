@@ -170,6 +170,66 @@ pub fn cluster_costs(
         .collect()
 }
 
+/// For every robot and cluster, what reaching the cluster costs (see
+/// [`cluster_costs`]), from whichever is fewer: one wavefront per robot, or
+/// one per cluster (its cells the sources) read at the robots' cells. Both
+/// give the same costs on the free-space traversal, where paths are
+/// reversible (Bautin et al. 2011 propagate one wavefront per frontier for
+/// this reason); robots standing where the cluster's wavefront cannot enter
+/// (inside an inflated obstacle), or teams of mixed footprints, use their
+/// own wavefronts.
+pub fn cluster_cost_matrix(
+    input: &PlanningInput<'_>,
+    costs: &mut CostCache<'_>,
+    margin: f64,
+) -> Vec<Vec<Option<ClusterCost>>> {
+    let kinds: Vec<crate::cost::TraversalKind> = input
+        .robots
+        .iter()
+        .map(|r| crate::cost::TraversalKind::free_space(r.capabilities.footprint_radius_m))
+        .collect();
+    let one_kind = kinds.windows(2).all(|w| w[0] == w[1]);
+    if kinds.is_empty() || !one_kind || input.clusters.len() >= input.robots.len() {
+        return free_space_cost_maps(input, costs)
+            .iter()
+            .zip(input.robots)
+            .map(|(m, r)| cluster_costs(m, input.clusters, current_target(r), margin))
+            .collect();
+    }
+    let traversal = costs.traversal(kinds[0]);
+    let maps = crate::cost::in_parallel(input.clusters, input.threads, |cluster| {
+        crate::cost::cost_map(&traversal, &cluster.cells)
+    });
+    input
+        .robots
+        .iter()
+        .map(|robot| {
+            let current = current_target(robot);
+            let row: Vec<Option<ClusterCost>> = input
+                .clusters
+                .iter()
+                .zip(&maps)
+                .map(|(cluster, map)| {
+                    let cost = map.cost(robot.cell)?;
+                    if let Some(cell) = current.filter(|c| cluster.cells.contains(c)) {
+                        return Some(ClusterCost { cell, cost, score: cost - margin });
+                    }
+                    // The cluster's cell nearest to the robot: where the
+                    // wavefront's descent from the robot ends.
+                    let cell = map.path_to(&traversal, robot.cell).and_then(|p| p.first().copied())?;
+                    Some(ClusterCost { cell, cost, score: cost })
+                })
+                .collect();
+            if row.iter().all(Option::is_none) && !traversal.passable(robot.cell) {
+                // Inside an inflated obstacle: only its own wavefront gets out.
+                let own = costs.cost_map(kinds[0], robot.cell);
+                return cluster_costs(&own, input.clusters, current, margin);
+            }
+            row
+        })
+        .collect()
+}
+
 /// The robot's current target cell, if it has one.
 pub fn current_target(robot: &RobotView) -> Option<Cell> {
     robot.current.map(|c| c.target)

@@ -5,13 +5,14 @@
 //! "uncoordinated" strategy of Burgard et al. 2005, §IV-C. There is no
 //! arbitration: robots that share a closest frontier all go there.
 
-use super::{Plan, PlanningInput, Policy, Target, current_target, free_space_cost_maps};
-use crate::cost::CostCache;
+use super::{Plan, PlanningInput, Policy, Target, current_target};
+use crate::cost::{CostCache, TraversalKind, labelled_cost_map, shortest_path};
 
 pub(super) const NAME: &str = "nearest";
 
 /// Closest frontier cell by path length (Bautin et al. 2011, Algorithm 1).
-/// Complexity: one cost map per robot plus O(n·m) for n robots, m frontier cells.
+/// Complexity: one wavefront from the frontier for the whole team (one per
+/// robot when footprints differ), plus an A* per robot that has a target.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Nearest {
     /// Hysteresis: the current target wins unless another is closer by more than this, metres.
@@ -25,21 +26,44 @@ impl Policy for Nearest {
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
-        let targets = free_space_cost_maps(input, costs)
+        let kinds: Vec<TraversalKind> =
+            input.robots.iter().map(|r| TraversalKind::free_space(r.capabilities.footprint_radius_m)).collect();
+        // One wavefront from the whole frontier serves every robot of one
+        // footprint: it finds each robot's closest frontier cell (costs are
+        // reversible on the free-space traversal).
+        let shared = (!kinds.is_empty() && kinds.windows(2).all(|w| w[0] == w[1]))
+            .then(|| (costs.traversal(kinds[0]), kinds[0]))
+            .map(|(traversal, kind)| (labelled_cost_map(&traversal, &frontier), traversal, kind));
+        let targets = input
+            .robots
             .iter()
-            .zip(input.robots)
-            .map(|(map, robot)| {
-                let current = current_target(robot);
-                frontier
-                    .iter()
-                    .filter_map(|&cell| {
-                        let cost = map.cost(cell)?;
-                        let score = if Some(cell) == current { cost - self.switch_margin } else { cost };
-                        Some((score, cost, cell))
-                    })
-                    // Ties go to the first cell in row-major order: deterministic.
-                    .min_by(|a, b| a.0.total_cmp(&b.0).then(a.2.y.cmp(&b.2.y)).then(a.2.x.cmp(&b.2.x)))
-                    .map(|(_, cost, cell)| Target { cell, utility: -cost, path_cost: cost, gain_region: None })
+            .map(|robot| {
+                let nearest = match &shared {
+                    Some((labelled, _, _)) => labelled
+                        .source_of(robot.cell)
+                        .and_then(|k| labelled.map().cost(robot.cell).map(|cost| (frontier[k], cost))),
+                    None => None,
+                };
+                let nearest = nearest.or_else(|| {
+                    let kind = TraversalKind::free_space(robot.capabilities.footprint_radius_m);
+                    let map = costs.cost_map(kind, robot.cell);
+                    frontier
+                        .iter()
+                        .filter_map(|&cell| map.cost(cell).map(|cost| (cell, cost)))
+                        // Ties go to the first cell in row-major order: deterministic.
+                        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.y.cmp(&b.0.y)).then(a.0.x.cmp(&b.0.x)))
+                })?;
+                // Hysteresis: stay on the current target unless the nearest is
+                // closer by more than the margin.
+                let kept = current_target(robot).filter(|c| *c != nearest.0 && frontier.contains(c)).and_then(|c| {
+                    let traversal = costs.traversal(TraversalKind::free_space(robot.capabilities.footprint_radius_m));
+                    let path = shortest_path(traversal.frame(), robot.cell, c, |n| traversal.passable(n))?;
+                    let length: f64 =
+                        path.windows(2).map(|w| w[0].distance(w[1])).sum::<f64>() * traversal.frame().resolution;
+                    (length - self.switch_margin <= nearest.1).then_some((c, length))
+                });
+                let (cell, cost) = kept.unwrap_or(nearest);
+                Some(Target { cell, utility: -cost, path_cost: cost, gain_region: None })
             })
             .collect();
         Plan::of(targets)

@@ -126,14 +126,50 @@ pub fn compute_bids(
         .collect()
 }
 
-/// The share of `rect` covered by the union of `assigned`.
-fn overlap(rect: &CellRect, assigned: &[CellRect]) -> f64 {
-    let touching: Vec<CellRect> = assigned.iter().filter_map(|a| a.intersection(rect)).collect();
-    if touching.is_empty() {
-        return 0.0;
+/// The union of the gain rectangles assigned so far, with a summed-area
+/// table so that the covered share of any rectangle takes four lookups.
+struct Coverage {
+    bounds: CellRect,
+    covered: Vec<u8>,
+    /// (width + 1) × (height + 1) prefix sums of `covered`.
+    sums: Vec<u32>,
+}
+
+impl Coverage {
+    fn new(bounds: CellRect) -> Self {
+        let (w, h) = (bounds.width as usize, bounds.height as usize);
+        Self { bounds, covered: vec![0; w * h], sums: vec![0; (w + 1) * (h + 1)] }
     }
-    let covered = rect.cells().filter(|c| touching.iter().any(|t| t.contains(*c))).count();
-    covered as f64 / rect.area() as f64
+
+    fn add(&mut self, rect: &CellRect) {
+        let Some(r) = rect.intersection(&self.bounds) else { return };
+        let w = self.bounds.width as usize;
+        for y in r.y..r.y_end() {
+            let row = (y - self.bounds.y) as usize * w;
+            let (x0, x1) = ((r.x - self.bounds.x) as usize, (r.x_end() - self.bounds.x) as usize);
+            self.covered[row + x0..row + x1].fill(1);
+        }
+        let (w, h) = (self.bounds.width as usize, self.bounds.height as usize);
+        for y in 0..h {
+            let mut run = 0u32;
+            for x in 0..w {
+                run += u32::from(self.covered[y * w + x]);
+                self.sums[(y + 1) * (w + 1) + x + 1] = self.sums[y * (w + 1) + x + 1] + run;
+            }
+        }
+    }
+
+    /// d_j of §4.2: the share of `rect` inside the union.
+    fn overlap(&self, rect: &CellRect) -> f64 {
+        let Some(r) = rect.intersection(&self.bounds) else { return 0.0 };
+        let stride = self.bounds.width as usize + 1;
+        let (x0, x1) = ((r.x - self.bounds.x) as usize, (r.x_end() - self.bounds.x) as usize);
+        let (y0, y1) = ((r.y - self.bounds.y) as usize, (r.y_end() - self.bounds.y) as usize);
+        let inside = self.sums[y1 * stride + x1] + self.sums[y0 * stride + x0]
+            - self.sums[y0 * stride + x1]
+            - self.sums[y1 * stride + x0];
+        f64::from(inside) / rect.area() as f64
+    }
 }
 
 impl Policy for Simmons {
@@ -183,16 +219,19 @@ impl Policy for Simmons {
             })
             .collect();
         let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
-        let mut assigned: Vec<CellRect> = Vec::new();
+        let Some(bounds) = bids.iter().flat_map(|b| b.iter().map(|b| b.gain_region)).reduce(|a, b| a.union(&b)) else {
+            return Plan::of(targets);
+        };
+        let mut assigned = Coverage::new(bounds);
         loop {
-            let mut best: Option<(f64, usize, usize, f64)> = None;
+            let mut best: Option<(f64, usize, usize)> = None;
             for (i, robot_bids) in bids.iter().enumerate() {
                 if targets[i].is_some() {
                     continue;
                 }
                 let current_region = input.robots[i].current.and_then(|c| c.gain_region);
                 for (b, bid) in robot_bids.iter().enumerate() {
-                    let mut gain = (1.0 - overlap(&bid.gain_region, &assigned)) * bid.information_gain;
+                    let mut gain = (1.0 - assigned.overlap(&bid.gain_region)) * bid.information_gain;
                     if current_region.is_some_and(|r| r.contains(bid.target)) {
                         gain /= self.hysteresis_ratio;
                     }
@@ -201,13 +240,13 @@ impl Policy for Simmons {
                     }
                     let utility = gain - self.cost_weight * bid.path_cost_m / resolution;
                     if best.is_none_or(|(u, ..)| utility > u) {
-                        best = Some((utility, i, b, gain));
+                        best = Some((utility, i, b));
                     }
                 }
             }
-            let Some((utility, i, b, _)) = best else { break };
+            let Some((utility, i, b)) = best else { break };
             let bid = bids[i][b];
-            assigned.push(bid.gain_region);
+            assigned.add(&bid.gain_region);
             targets[i] = Some(Target {
                 cell: bid.target,
                 utility,
