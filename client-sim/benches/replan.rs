@@ -108,7 +108,15 @@ fn replan(c: &mut Criterion) {
         for n in [10usize, 50] {
             let robots = &all_robots[..n];
             let bids = vec![Vec::new(); n];
-            let input = PlanningInput { grid: &grid, clusters: &clusters, robots, threads: 2, bids: &bids, seed: 1 };
+            let input = PlanningInput {
+                grid: &grid,
+                clusters: &clusters,
+                robots,
+                threads: 2,
+                bids: &bids,
+                seed: 1,
+                reserved: &[],
+            };
             group.bench_function(format!("{} {n} robots", descriptor.name), |b| {
                 b.iter(|| policy.plan(&input, &mut CostCache::new(&grid)))
             });

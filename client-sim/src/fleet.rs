@@ -1,11 +1,18 @@
 //! The fleet runner: one mission, N simulated robots, until the reachable
 //! free space is known.
 //!
-//! Time is discrete. In each step every robot, in a fixed order, moves one
-//! cell, senses, and reports to the executive; the executive may replan
-//! within that request. Because the robots take turns, the executive sees the
-//! same requests in the same order on every run with the same seed, and the
-//! run is reproducible, while each robot remains its own gRPC client.
+//! Time is discrete. In each step every robot, in a fixed order, moves,
+//! senses, and reports to the executive; the executive may replan within
+//! that request. Because the robots take turns and every random draw comes
+//! from the run's seed, the executive sees the same requests in the same
+//! order on every run with the same seed, and the run is reproducible, while
+//! each robot remains its own gRPC client.
+//!
+//! The models of the papers' simulators, each a setting with the paper's
+//! value as its default: cells of 15 cm and interference (robots closer than
+//! a set distance move with probability 0.7; Burgard et al. 2005, §IV-C),
+//! 360° sensors, teams started together at one random cell, and limited
+//! communication (§II-D).
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -15,17 +22,88 @@ use serde::Serialize;
 use tokio_util::sync::CancellationToken;
 use tonic::Status;
 
+use exploration::grid::Cell;
+use exploration::rng::SplitMix64;
 use exploration_proto::v1 as pb;
 use exploration_proto::v1::missions_client::MissionsClient;
 
+use crate::generate::{Generator, generate};
 use crate::robot::{Bidding, RobotError, RobotModel, SimRobot, TeamMap};
 use crate::world::{StartChoice, World, WorldError};
+
+/// Which world to explore.
+#[derive(Debug, Clone, PartialEq)]
+pub enum WorldSpec {
+    /// A ROS map_server map (YAML).
+    Map(PathBuf),
+    /// A generated world of the given size, metres.
+    Generated {
+        /// What kind.
+        generator: Generator,
+        /// Width, metres.
+        width_m: f64,
+        /// Height, metres.
+        height_m: f64,
+    },
+}
+
+impl WorldSpec {
+    /// Builds the world for a run.
+    pub fn build(&self, cell_size: Option<f64>, start: StartChoice, seed: u64) -> Result<World, WorldError> {
+        match self {
+            Self::Map(path) => World::load(path, cell_size, start, seed),
+            Self::Generated { generator, width_m, height_m } => {
+                generate(*generator, *width_m, *height_m, cell_size.unwrap_or(0.15), seed, start)
+            }
+        }
+    }
+}
+
+/// Robots close to each other slow each other down (Burgard et al. 2005,
+/// §IV-C: "whenever robots are close to each other, the system performs the
+/// planned movement with a probability of 0.7").
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Interference {
+    /// Closer than this (metres), robots interfere.
+    pub radius_m: f64,
+    /// Probability that a planned move happens when they do.
+    pub success: f64,
+}
+
+/// How far robots can communicate (Burgard et al. 2005, §II-D).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CommRange {
+    /// In metres.
+    Metres(f64),
+    /// As a share of the map's diameter (Fig. 12's axis).
+    OfDiameter(f64),
+}
+
+impl CommRange {
+    /// The range in metres on `world`.
+    pub fn metres(&self, world: &World) -> f64 {
+        match self {
+            Self::Metres(m) => *m,
+            Self::OfDiameter(f) => f * world.diameter_m(),
+        }
+    }
+}
+
+/// Where the team starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Layout {
+    /// All robots at the start cell (every paper).
+    #[default]
+    Together,
+    /// Each robot at its own random cell of the main free area.
+    Spread,
+}
 
 /// Everything a run is made of.
 #[derive(Debug, Clone)]
 pub struct RunConfig {
-    /// The map_server YAML of the world.
-    pub map: PathBuf,
+    /// The world.
+    pub world: WorldSpec,
     /// Team size.
     pub robots: usize,
     /// Coordination policy.
@@ -36,14 +114,22 @@ pub struct RunConfig {
     pub seed: u64,
     /// An executive to use; `None` starts one on loopback.
     pub server: Option<String>,
+    /// Operator token for the executive, if it requires one.
+    pub token: Option<String>,
     /// Database of the embedded executive; `None` uses a temporary file.
     pub db: Option<PathBuf>,
-    /// Simulation cell size, metres; `None` keeps the map's.
+    /// Simulation cell size, metres; `None` keeps a map's own.
     pub cell_size: Option<f64>,
-    /// The robots.
-    pub model: RobotModel,
+    /// The robots' models, robot i taking model i mod len (heterogeneous teams).
+    pub models: Vec<RobotModel>,
     /// Where the team starts.
     pub start: StartChoice,
+    /// Together or spread.
+    pub layout: Layout,
+    /// Interference between close robots; `None` for none.
+    pub interference: Option<Interference>,
+    /// Limited communication; `None` for unlimited.
+    pub comm_range: Option<CommRange>,
     /// Give up after this many steps.
     pub max_steps: u64,
     /// Give up after this many steps in which no robot has a task, or 10×
@@ -57,25 +143,37 @@ pub struct RunConfig {
     pub progress: bool,
 }
 
+/// The robot of the papers' simulations: 360° sensor of 4 m, point-sized, 0.5 m/s.
+pub const DEFAULT_MODEL: RobotModel = RobotModel {
+    sensor_range_m: 4.0,
+    field_of_view_rad: std::f64::consts::TAU,
+    speed_mps: 0.5,
+    footprint_radius_m: 0.0,
+};
+
 impl RunConfig {
-    /// A run of `robots` robots with `policy` on `map`, with default settings.
+    /// A run of `robots` robots with `policy` on the map at `map`, with the defaults.
     pub fn new(map: impl Into<PathBuf>, robots: usize, policy: &str) -> Self {
+        Self::on(WorldSpec::Map(map.into()), robots, policy)
+    }
+
+    /// A run of `robots` robots with `policy` in `world`, with the defaults.
+    pub fn on(world: WorldSpec, robots: usize, policy: &str) -> Self {
         Self {
-            map: map.into(),
+            world,
             robots,
             policy: policy.to_owned(),
             params: BTreeMap::new(),
             seed: 1,
             server: None,
+            token: None,
             db: None,
-            cell_size: Some(0.1),
-            model: RobotModel {
-                sensor_range_m: 4.0,
-                field_of_view_rad: std::f64::consts::TAU,
-                speed_mps: 0.5,
-                footprint_radius_m: 0.0,
-            },
+            cell_size: Some(0.15),
+            models: vec![DEFAULT_MODEL],
             start: StartChoice::Auto,
+            layout: Layout::Together,
+            interference: Some(Interference { radius_m: 1.0, success: 0.7 }),
+            comm_range: None,
             max_steps: 50_000,
             stall_steps: 200,
             retry_budget: Duration::from_secs(120),
@@ -86,7 +184,7 @@ impl RunConfig {
 }
 
 /// What a run measured.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize)]
 pub struct RunReport {
     /// The executive's mission.
     pub mission_id: u64,
@@ -98,7 +196,8 @@ pub struct RunReport {
     pub robots: usize,
     /// The seed.
     pub seed: u64,
-    /// Whether every reachable free cell became known.
+    /// Whether every reachable free cell became known (by one robot, under
+    /// limited communication, as Burgard et al. 2005 §IV-D count it).
     pub completed: bool,
     /// Why the run ended.
     pub ended: String,
@@ -116,6 +215,8 @@ pub struct RunReport {
     pub t100: Option<u64>,
     /// Metres each robot travelled.
     pub distance_per_robot: Vec<f64>,
+    /// Steps robots spent without a task, summed over the team.
+    pub idle_steps: u64,
     /// Replannings of the executive.
     pub replans: u64,
     /// Map updates the executive applied.
@@ -127,6 +228,8 @@ pub struct RunReport {
     pub reachable_cells: usize,
     /// Cell size, metres.
     pub cell_size: f64,
+    /// Communication range, metres, when limited.
+    pub comm_range_m: Option<f64>,
     /// Cells sensed by more than one robot, as a share of the cells sensed.
     pub overlap: f64,
     /// Steps at which the assignment stream lagged behind a response.
@@ -135,7 +238,16 @@ pub struct RunReport {
     pub wall_time_s: f64,
     /// Each robot's cells, in order (not serialized).
     #[serde(skip)]
-    pub trajectories: Vec<Vec<exploration::grid::Cell>>,
+    pub trajectories: Vec<Vec<Cell>>,
+    /// Coverage after each step (not serialized).
+    #[serde(skip)]
+    pub coverage_curve: Vec<f32>,
+    /// The world explored (not serialized).
+    #[serde(skip)]
+    pub world: Option<World>,
+    /// The executive's last segmentation labels, for `segmentation` (not serialized).
+    #[serde(skip)]
+    pub segments: Option<Vec<u32>>,
 }
 
 /// Why a run could not be carried out.
@@ -158,14 +270,24 @@ pub enum SimError {
     /// The embedded executive could not start.
     #[error("cannot start the embedded executive: {0}")]
     Executive(String),
+    /// The configuration cannot run.
+    #[error("{0}")]
+    Config(String),
 }
 
-/// An executive on loopback, owned by the run.
+/// An executive on loopback, owned by the run; stopped when dropped.
 struct EmbeddedExecutive {
     url: String,
     stop: CancellationToken,
-    task: tokio::task::JoinHandle<Result<(), coordinator::ServeError>>,
+    task: Option<tokio::task::JoinHandle<Result<(), coordinator::ServeError>>>,
     _dir: Option<tempfile::TempDir>,
+}
+
+impl Drop for EmbeddedExecutive {
+    fn drop(&mut self) {
+        // A run abandoned midway (a time limit) must not leave its executive serving.
+        self.stop.cancel();
+    }
 }
 
 impl EmbeddedExecutive {
@@ -187,12 +309,13 @@ impl EmbeddedExecutive {
         // takes the fleet with it, so power-cut durability buys nothing here.
         config.durability = coordinator::Durability::Normal;
         let task = tokio::spawn(coordinator::run(listener, shutdown, config));
-        Ok(Self { url: format!("http://{address}"), stop, task, _dir: dir })
+        Ok(Self { url: format!("http://{address}"), stop, task: Some(task), _dir: dir })
     }
 
-    async fn stop(self) -> Result<(), SimError> {
+    async fn stop(mut self) -> Result<(), SimError> {
         self.stop.cancel();
-        match self.task.await {
+        let Some(task) = self.task.take() else { return Ok(()) };
+        match task.await {
             Ok(Ok(())) => Ok(()),
             Ok(Err(e)) => Err(SimError::Executive(e.to_string())),
             Err(e) => Err(SimError::Executive(e.to_string())),
@@ -202,7 +325,10 @@ impl EmbeddedExecutive {
 
 /// Runs one mission to the end.
 pub async fn run(config: &RunConfig) -> Result<RunReport, SimError> {
-    let world = World::load(&config.map, config.cell_size, config.start, config.seed)?;
+    if config.robots == 0 || config.models.is_empty() {
+        return Err(SimError::Config("a run needs at least one robot and one robot model".into()));
+    }
+    let world = config.world.build(config.cell_size, config.start, config.seed)?;
     let embedded = match &config.server {
         Some(_) => None,
         None => Some(EmbeddedExecutive::start(config.db.clone()).await?),
@@ -212,14 +338,57 @@ pub async fn run(config: &RunConfig) -> Result<RunReport, SimError> {
         (None, Some(e)) => e.url.clone(),
         (None, None) => unreachable!("an executive was started"),
     };
-    let result = run_against(config, &world, &url).await;
+    let result = run_against(config, world, &url).await;
     if let Some(executive) = embedded {
         executive.stop().await?;
     }
     result
 }
 
-async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<RunReport, SimError> {
+/// The cells the robots start on: all on the world's start, or spread over
+/// random cells reachable from it.
+fn start_cells(world: &World, config: &RunConfig) -> Vec<Cell> {
+    match config.layout {
+        Layout::Together => vec![world.start; config.robots],
+        Layout::Spread => {
+            let reachable: Vec<usize> = (0..world.frame.len()).filter(|&i| world.reachable[i]).collect();
+            let mut rng = SplitMix64::new(config.seed ^ 0x5350_5245_4144);
+            (0..config.robots)
+                .map(|_| world.frame.cell(reachable[rng.below(reachable.len() as u64) as usize]))
+                .collect()
+        }
+    }
+}
+
+/// Robots in range of each other, through any chain of robots in range
+/// (the ad-hoc network forwards within a cluster, Burgard et al. §III).
+fn communication_clusters(robots: &[SimRobot], range_cells: f64) -> Vec<Vec<usize>> {
+    let n = robots.len();
+    let mut cluster: Vec<usize> = (0..n).collect();
+    fn root(c: &mut [usize], mut k: usize) -> usize {
+        while c[k] != k {
+            c[k] = c[c[k]];
+            k = c[k];
+        }
+        k
+    }
+    for i in 0..n {
+        for j in i + 1..n {
+            if robots[i].cell.distance(robots[j].cell) <= range_cells {
+                let (a, b) = (root(&mut cluster, i), root(&mut cluster, j));
+                cluster[a.max(b)] = a.min(b);
+            }
+        }
+    }
+    let mut groups: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+    for i in 0..n {
+        let r = root(&mut cluster, i);
+        groups.entry(r).or_default().push(i);
+    }
+    groups.into_values().collect()
+}
+
+async fn run_against(config: &RunConfig, world: World, url: &str) -> Result<RunReport, SimError> {
     let started = Instant::now();
     let channel = tonic::transport::Endpoint::from_shared(url.to_owned())
         .map_err(|e| SimError::Executive(format!("bad executive URL {url}: {e}")))?
@@ -227,6 +396,7 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
         .connect_lazy();
     let mut missions = MissionsClient::new(channel);
     let frame = world.frame;
+    let limited = config.comm_range.is_some();
     let mission = missions
         .create_mission(pb::CreateMissionRequest {
             name: format!("fleet-sim {} seed {}", world.name, config.seed),
@@ -241,6 +411,7 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
                 params: config.params.iter().map(|(k, v)| (k.clone(), *v)).collect(),
             }),
             replan: None,
+            scoped_by_communication: limited,
         })
         .await
         .map_err(|status| SimError::Rpc { what: "CreateMission", status })?
@@ -264,38 +435,84 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
         every: config.bid_every.max(1),
         spacing_m: config.params.get("spacing_m").copied().unwrap_or(0.3),
     });
+    let starts = start_cells(&world, config);
     let mut robots = Vec::with_capacity(config.robots);
-    for i in 0..config.robots {
+    for (i, &start) in starts.iter().enumerate() {
         robots.push(
             SimRobot::connect(
                 url,
                 mission.id,
                 format!("robot-{i}"),
-                world.start,
-                world,
-                config.model,
+                start,
+                &world,
+                config.models[i % config.models.len()],
                 bidding,
+                limited,
+                config.robots,
                 config.retry_budget,
                 stop.clone(),
             )
             .await?,
         );
     }
+    let range_cells = config.comm_range.map(|r| r.metres(&world) / frame.resolution);
+    let mut rng = SplitMix64::new(config.seed ^ 0x494E_5445_5246);
     let mut team = TeamMap::new(frame);
     let mut milestones: [Option<u64>; 4] = [None; 4];
     const LEVELS: [f64; 4] = [0.5, 0.9, 0.95, 1.0];
-    let mut idle_steps = 0;
+    let mut curve = Vec::new();
+    let (mut idle_steps, mut idle_total) = (0, 0);
     let mut last_progress = (0, 0);
     let mut step = 0;
+    let known = |team: &TeamMap, robots: &[SimRobot]| {
+        if limited { robots.iter().map(|r| r.known_reachable).max().unwrap_or(0) } else { team.known_reachable }
+    };
     let ended = loop {
+        // Limited communication: who is in range, and what they pass on.
+        if let Some(range) = range_cells {
+            for cluster in communication_clusters(&robots, range) {
+                for &a in &cluster {
+                    for &b in &cluster {
+                        if a != b {
+                            let (from, to) = if a < b {
+                                let (low, high) = robots.split_at_mut(b);
+                                (&mut low[a], &mut high[0])
+                            } else {
+                                let (low, high) = robots.split_at_mut(a);
+                                (&mut high[0], &mut low[b])
+                            };
+                            from.share_with(to, b, &world);
+                        }
+                    }
+                }
+                let ids: Vec<u64> = cluster.iter().map(|&k| robots[k].id).collect();
+                for &k in &cluster {
+                    robots[k].peers = ids.iter().copied().filter(|id| *id != robots[k].id).collect();
+                }
+            }
+        }
         let mut any_task = false;
         let mut executive_done = false;
-        for robot in &mut robots {
-            let outcome = robot.step(world, &mut team).await?;
+        let cells: Vec<Cell> = robots.iter().map(|r| r.cell).collect();
+        for (i, robot) in robots.iter_mut().enumerate() {
+            // Interference: a move near another robot succeeds with probability p.
+            let blocked = config.interference.is_some_and(|f| {
+                let near = cells
+                    .iter()
+                    .enumerate()
+                    .any(|(j, c)| j != i && c.distance(robot.cell) * frame.resolution <= f.radius_m);
+                near && !rng.chance(f.success)
+            });
+            let outcome = robot.step(&world, &mut team, blocked).await?;
             any_task |= outcome.has_task;
+            if !outcome.has_task {
+                idle_total += 1;
+            }
             executive_done |= outcome.mission_completed;
         }
-        let coverage = team.known_reachable as f64 / world.reachable_cells.max(1) as f64;
+        let known_now = known(&team, &robots);
+        let coverage = known_now as f64 / world.reachable_cells.max(1) as f64;
+        curve.push(coverage as f32);
         for (slot, level) in milestones.iter_mut().zip(LEVELS) {
             if slot.is_none() && coverage >= level - 1e-12 {
                 *slot = Some(step);
@@ -304,18 +521,18 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
         if config.progress && step % 250 == 0 {
             eprintln!("step {step:>6}  coverage {:>5.1} %", 100.0 * coverage);
         }
-        if team.known_reachable >= world.reachable_cells {
+        if known_now >= world.reachable_cells {
             break "every reachable free cell is known".to_owned();
         }
-        if executive_done {
+        if executive_done && !limited {
             break "the executive reports no frontier left".to_owned();
         }
         idle_steps = if any_task { 0 } else { idle_steps + 1 };
         if idle_steps >= config.stall_steps {
             break format!("no robot had a task for {idle_steps} steps");
         }
-        if team.known_reachable > last_progress.0 {
-            last_progress = (team.known_reachable, step);
+        if known_now > last_progress.0 {
+            last_progress = (known_now, step);
         } else if step - last_progress.1 >= 10 * config.stall_steps {
             break format!("the team learnt nothing for {} steps", step - last_progress.1);
         }
@@ -329,33 +546,60 @@ async fn run_against(config: &RunConfig, world: &World, url: &str) -> Result<Run
         .await
         .map_err(|status| SimError::Rpc { what: "GetMission", status })?
         .into_inner();
+    let segments = if config.policy == "segmentation" {
+        missions
+            .get_segmentation(pb::GetSegmentationRequest { mission_id: mission.id, include_labels: true })
+            .await
+            .ok()
+            .map(|r| r.into_inner().labels)
+            .filter(|l| l.len() == frame.len() * 4)
+            .map(|l| l.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+    } else {
+        None
+    };
     let sensed = team.sensed_by.iter().filter(|&&n| n > 0).count();
     let overlapping = team.sensed_by.iter().filter(|&&n| n > 1).count();
-    let coverage = team.known_reachable as f64 / world.reachable_cells.max(1) as f64;
-    let report = RunReport {
+    let known_now = known(&team, &robots);
+    Ok(RunReport {
         mission_id: mission.id,
         map: world.name.clone(),
         policy: config.policy.clone(),
         robots: config.robots,
         seed: config.seed,
-        completed: team.known_reachable >= world.reachable_cells,
+        completed: known_now >= world.reachable_cells,
         ended,
         steps: step + 1,
-        coverage,
+        coverage: known_now as f64 / world.reachable_cells.max(1) as f64,
         t50: milestones[0],
         t90: milestones[1],
         t95: milestones[2],
         t100: milestones[3],
         distance_per_robot: robots.iter().map(|r| r.distance_m).collect(),
+        idle_steps: idle_total,
         replans: summary.replans,
         map_updates: summary.map_updates,
         updates_acknowledged: robots.iter().map(|r| r.acknowledged_updates).sum(),
         reachable_cells: world.reachable_cells,
         cell_size: frame.resolution,
+        comm_range_m: range_cells.map(|r| r * frame.resolution),
         overlap: if sensed == 0 { 0.0 } else { overlapping as f64 / sensed as f64 },
         stream_lags: robots.iter().map(|r| r.stream_lags).sum(),
         wall_time_s: started.elapsed().as_secs_f64(),
         trajectories: robots.iter().map(|r| r.trajectory.clone()).collect(),
-    };
-    Ok(report)
+        coverage_curve: curve,
+        world: Some(world),
+        segments,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn communication_ranges_read_in_metres_or_of_the_diameter() {
+        let world = generate(Generator::Empty, 30.0, 40.0, 0.5, 1, StartChoice::Auto).unwrap();
+        assert_eq!(CommRange::Metres(7.0).metres(&world), 7.0);
+        assert!((CommRange::OfDiameter(0.3).metres(&world) - 15.0).abs() < 1e-9);
+    }
 }

@@ -3,11 +3,20 @@
 //! and as a load test.
 //!
 //! - [`world`]: ground-truth worlds from ROS map_server maps.
+//! - [`generate`]: generated worlds (unstructured, office, corridor, maze).
 //! - [`robot`]: one simulated robot: sensor, motion, its own gRPC client.
 //! - [`fleet`]: runs a mission with N robots and measures it.
+//! - [`experiment`]: matrices of runs, in parallel, resumable; their summaries.
+//! - [`plots`], [`picture`], [`stats`], [`report`]: what the experiments show.
 
+pub mod experiment;
 pub mod fleet;
+pub mod generate;
+pub mod picture;
+pub mod plots;
+pub mod report;
 pub mod robot;
+pub mod stats;
 pub mod world;
 
 pub use fleet::{RunConfig, RunReport, SimError, run};

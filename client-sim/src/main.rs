@@ -8,6 +8,10 @@ use anyhow::{Context, bail};
 use clap::{Args, Parser, Subcommand};
 use tracing_subscriber::EnvFilter;
 
+use client_sim::experiment::Experiment;
+use client_sim::fleet::{CommRange, Interference, Layout, WorldSpec};
+use client_sim::generate::Generator;
+use client_sim::robot::RobotModel;
 use client_sim::world::StartChoice;
 use client_sim::{RunConfig, RunReport};
 use exploration::math::Point2;
@@ -23,14 +27,58 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Explores one map with one team and prints what it measured.
-    Run(RunArgs),
+    Run(Box<RunArgs>),
+    /// Runs a matrix of missions from an experiment file, in parallel,
+    /// resuming what an earlier call into the same folder left undone.
+    Experiment(ExperimentArgs),
+    /// Writes the results report from experiments already run.
+    Report(ReportArgs),
+}
+
+#[derive(Debug, Args)]
+struct ExperimentArgs {
+    /// The experiment file (TOML; see experiments/).
+    #[arg(long)]
+    config: PathBuf,
+    /// Folder for runs.csv, summary.csv, curves and plots (default:
+    /// docs/results/<experiment name>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Runs at a time (default: the number of cores).
+    #[arg(long)]
+    jobs: Option<usize>,
+    /// Drive one executive for every run instead of one embedded per run.
+    #[arg(long)]
+    server: Option<String>,
+    /// Only redraw summary and plots from the runs already done.
+    #[arg(long)]
+    replot: bool,
+}
+
+#[derive(Debug, Args)]
+struct ReportArgs {
+    /// Where to write the report.
+    #[arg(long, default_value = "docs/results.md")]
+    out: PathBuf,
+    /// Folder holding each experiment's results folder.
+    #[arg(long, default_value = "docs/results")]
+    results: PathBuf,
+    /// The experiment files, in the order of the report.
+    configs: Vec<PathBuf>,
 }
 
 #[derive(Debug, Args)]
 struct RunArgs {
     /// ROS map_server YAML of the world to explore.
+    #[arg(long, conflicts_with = "world")]
+    map: Option<PathBuf>,
+    /// A generated world instead of a map: unstructured[:density],
+    /// office, corridor, maze[:corridor width m], empty.
     #[arg(long)]
-    map: PathBuf,
+    world: Option<String>,
+    /// Size of a generated world, WIDTHxHEIGHT in metres.
+    #[arg(long, default_value = "20x20")]
+    size: String,
     /// Number of robots.
     #[arg(long, default_value_t = 3)]
     robots: usize,
@@ -47,11 +95,15 @@ struct RunArgs {
     /// started on a loopback port for the run.
     #[arg(long)]
     server: Option<String>,
+    /// Operator token of that executive.
+    #[arg(long, env = "COORDINATOR_OPERATOR_TOKEN", hide_env_values = true)]
+    token: Option<String>,
     /// Database file for the embedded executive (default: a temporary file).
     #[arg(long)]
     db: Option<PathBuf>,
-    /// Simulation cell size in metres; the map is coarsened conservatively.
-    #[arg(long, default_value_t = 0.1)]
+    /// Simulation cell size in metres (Burgard et al. 2005: 0.15); maps are
+    /// coarsened conservatively.
+    #[arg(long, default_value_t = 0.15)]
     cell_size: f64,
     /// Sensor range, metres.
     #[arg(long, default_value_t = 4.0)]
@@ -59,18 +111,43 @@ struct RunArgs {
     /// Sensor field of view, degrees.
     #[arg(long, default_value_t = 360.0)]
     fov: f64,
+    /// Robot speed, m/s (0.5: one cell per step).
+    #[arg(long, default_value_t = 0.5)]
+    speed: f64,
     /// Robot footprint radius, metres.
     #[arg(long, default_value_t = 0.0)]
     footprint: f64,
+    /// A robot model for a heterogeneous team, repeatable, robot i taking
+    /// model i mod count: sensor=M,fov=DEG,speed=MPS,footprint=M (omitted
+    /// keys take the options above).
+    #[arg(long = "model")]
+    models: Vec<String>,
     /// Start: `auto` (roomiest cell), `random` (seeded), or `x,y` in metres.
     #[arg(long, default_value = "auto")]
     start: String,
+    /// `together` (all at the start) or `spread` (each at a random cell).
+    #[arg(long, default_value = "together")]
+    layout: String,
+    /// Probability that a move near another robot happens (Burgard et al.
+    /// 2005: 0.7); 1 turns interference off.
+    #[arg(long, default_value_t = 0.7)]
+    interference: f64,
+    /// Distance under which robots interfere, metres.
+    #[arg(long, default_value_t = 1.0)]
+    interference_radius: f64,
+    /// Limited communication range: metres (`5`) or a share of the map's
+    /// diameter (`0.3d`); unlimited without it.
+    #[arg(long)]
+    comm_range: Option<String>,
     /// Give up after this many steps.
     #[arg(long, default_value_t = 50_000)]
     max_steps: u64,
     /// How long robots keep retrying an unreachable executive, seconds.
     #[arg(long, default_value_t = 120.0)]
     retry_for: f64,
+    /// Write a picture of the run (trajectories, start and end) to this PNG.
+    #[arg(long)]
+    picture: Option<PathBuf>,
     /// Print one JSON object on the last line instead of a summary.
     #[arg(long)]
     json: bool,
@@ -101,7 +178,9 @@ async fn main() -> anyhow::Result<()> {
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("warn"));
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
     match Cli::parse().command {
-        Command::Run(args) => run(args).await,
+        Command::Run(args) => run(*args).await,
+        Command::Experiment(args) => experiment(args).await,
+        Command::Report(args) => report(args),
     }
 }
 
@@ -109,26 +188,118 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
     if args.robots == 0 {
         bail!("--robots must be at least 1");
     }
-    let mut config = RunConfig::new(&args.map, args.robots, &args.policy);
+    let world = match (&args.map, &args.world) {
+        (Some(map), None) => WorldSpec::Map(map.clone()),
+        (None, Some(generator)) => {
+            let generator = Generator::parse(generator).with_context(|| {
+                format!("--world {generator:?}: expected unstructured, office, corridor, maze or empty")
+            })?;
+            let (w, h) = parse_size(&args.size)?;
+            WorldSpec::Generated { generator, width_m: w, height_m: h }
+        }
+        _ => bail!("give --map PATH.yaml or --world KIND"),
+    };
+    let mut config = RunConfig::on(world, args.robots, &args.policy);
     config.params = args.params.into_iter().collect::<BTreeMap<_, _>>();
     config.seed = args.seed;
     config.server = args.server;
+    config.token = args.token;
     config.db = args.db;
     config.cell_size = Some(args.cell_size);
-    config.model.sensor_range_m = args.sensor_range;
-    config.model.field_of_view_rad = args.fov.to_radians();
-    config.model.footprint_radius_m = args.footprint;
+    let base = RobotModel {
+        sensor_range_m: args.sensor_range,
+        field_of_view_rad: args.fov.to_radians(),
+        speed_mps: args.speed,
+        footprint_radius_m: args.footprint,
+    };
+    config.models = if args.models.is_empty() {
+        vec![base]
+    } else {
+        args.models.iter().map(|m| parse_model(m, base)).collect::<anyhow::Result<_>>()?
+    };
     config.start = parse_start(&args.start)?;
+    config.layout = match args.layout.as_str() {
+        "together" => Layout::Together,
+        "spread" => Layout::Spread,
+        other => bail!("--layout {other:?}: expected together or spread"),
+    };
+    config.interference = (args.interference < 1.0)
+        .then_some(Interference { radius_m: args.interference_radius, success: args.interference.clamp(0.0, 1.0) });
+    config.comm_range = args.comm_range.as_deref().map(parse_comm_range).transpose()?;
     config.max_steps = args.max_steps;
     config.retry_budget = Duration::from_secs_f64(args.retry_for);
     config.progress = !args.quiet && !args.json;
-    let report = client_sim::run(&config).await.with_context(|| format!("the run on {} failed", args.map.display()))?;
+    let report = client_sim::run(&config).await.context("the run failed")?;
+    if let Some(path) = &args.picture {
+        client_sim::experiment::draw_run(&report, path).with_context(|| format!("cannot write {}", path.display()))?;
+    }
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
         print_summary(&report);
     }
     Ok(())
+}
+
+async fn experiment(args: ExperimentArgs) -> anyhow::Result<()> {
+    let experiment = Experiment::load(&args.config)?;
+    let out = args.out.unwrap_or_else(|| PathBuf::from("docs/results").join(&experiment.name));
+    if args.replot {
+        client_sim::experiment::summarize(&experiment, &out)?;
+        client_sim::experiment::draw_plots(&experiment, &out)?;
+        return Ok(());
+    }
+    let jobs = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    client_sim::experiment::run_experiment(&args.config, &out, jobs, args.server, true)
+        .await
+        .with_context(|| format!("experiment {} failed", args.config.display()))?;
+    eprintln!("results in {}", out.display());
+    Ok(())
+}
+
+fn report(args: ReportArgs) -> anyhow::Result<()> {
+    let experiments = args
+        .configs
+        .iter()
+        .map(|c| {
+            let e = Experiment::load(c)?;
+            let dir = args.results.join(&e.name);
+            Ok((e, dir))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    client_sim::report::write_report(&experiments, &args.out)?;
+    eprintln!("wrote {}", args.out.display());
+    Ok(())
+}
+
+fn parse_size(s: &str) -> anyhow::Result<(f64, f64)> {
+    let (w, h) = s.split_once('x').with_context(|| format!("--size {s:?}: expected WIDTHxHEIGHT in metres"))?;
+    Ok((w.trim().parse()?, h.trim().parse()?))
+}
+
+fn parse_model(s: &str, base: RobotModel) -> anyhow::Result<RobotModel> {
+    let mut model = base;
+    for part in s.split(',').filter(|p| !p.trim().is_empty()) {
+        let (key, value) = part.split_once('=').with_context(|| format!("--model {s:?}: expected key=value pairs"))?;
+        let value: f64 = value.trim().parse().with_context(|| format!("--model {s:?}: {key} is not a number"))?;
+        match key.trim() {
+            "sensor" => model.sensor_range_m = value,
+            "fov" => model.field_of_view_rad = value.to_radians(),
+            "speed" => model.speed_mps = value,
+            "footprint" => model.footprint_radius_m = value,
+            other => bail!("--model {s:?}: unknown key {other:?} (sensor, fov, speed, footprint)"),
+        }
+    }
+    Ok(model)
+}
+
+fn parse_comm_range(s: &str) -> anyhow::Result<CommRange> {
+    Ok(match s.strip_suffix('d') {
+        Some(share) => CommRange::OfDiameter(share.trim().parse().with_context(|| format!("--comm-range {s:?}"))?),
+        None => {
+            CommRange::Metres(s.trim().trim_end_matches('m').parse().with_context(|| format!("--comm-range {s:?}"))?)
+        }
+    })
 }
 
 fn print_summary(r: &RunReport) {

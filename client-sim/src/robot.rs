@@ -6,6 +6,15 @@
 //! assigned target along a shortest path one cell per step, and reports
 //! arrival. It watches its assignment stream and retries through outages of
 //! the executive, resending an unacknowledged update under the same number.
+//!
+//! With unlimited communication the team shares one map (Burgard et al.
+//! 2005, §III), on which every robot plans its path, and each robot sends
+//! the executive its own measurements. With limited communication each
+//! robot knows only what it measured and what peers in range passed on:
+//! every robot keeps a log of its measurements and, for each peer, how much
+//! of it that peer already has, so nothing is sent or integrated twice
+//! (§III); it plans on its own map and sends the executive its whole
+//! knowledge.
 
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -29,6 +38,12 @@ use crate::world::World;
 const P_FREE: f32 = 0.05;
 /// Probability a robot reports for a cell that stopped a beam.
 const P_OCCUPIED: f32 = 0.95;
+/// How a robot's map stores a cell seen free (percent).
+const KNOWN_FREE: u8 = 5;
+/// How a robot's map stores a cell seen occupied (percent).
+const KNOWN_OCCUPIED: u8 = 95;
+/// The speed at which a robot moves one cell per step.
+pub const REFERENCE_SPEED_MPS: f64 = 0.5;
 
 /// What every robot of the team can do.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -37,7 +52,8 @@ pub struct RobotModel {
     pub sensor_range_m: f64,
     /// Sensor field of view, radians.
     pub field_of_view_rad: f64,
-    /// Nominal speed, metres per second (reported; motion is one cell per step).
+    /// Speed, metres per second: a robot of 0.5 m/s moves one cell per step,
+    /// faster and slower ones proportionally more or fewer.
     pub speed_mps: f64,
     /// Footprint radius, metres.
     pub footprint_radius_m: f64,
@@ -116,8 +132,24 @@ pub struct SimRobot {
     pub cell: Cell,
     heading: f64,
     sensor: RangeSensor,
-    /// Its own map: 0 unknown, 1 free, 2 occupied.
-    own: Vec<u8>,
+    /// What it knows: its measurements, and its peers' under limited communication.
+    pub own: OccupancyGrid,
+    /// Reachable free cells it knows.
+    pub known_reachable: usize,
+    /// Its own measurements, in order (cell index, occupied), for its peers.
+    log: Vec<(u32, bool)>,
+    /// For each robot of the team (by index), how much of `log` it has.
+    sent: Vec<usize>,
+    /// Cells its own sensor has covered (its map also holds what peers sent).
+    seen: Vec<bool>,
+    /// Cells changed since the last update sent.
+    dirty: Option<CellRect>,
+    /// Plan on its own map and send its knowledge (limited communication).
+    limited: bool,
+    /// Cells it may move this step, accumulated from its speed.
+    stride: f64,
+    /// The robots it can communicate with now (limited communication).
+    pub peers: Vec<u64>,
     seq: u64,
     task: Option<Task>,
     acknowledged_task: Option<u64>,
@@ -161,6 +193,8 @@ impl SimRobot {
         world: &World,
         model: RobotModel,
         bidding: Option<Bidding>,
+        limited: bool,
+        team_size: usize,
         retry_budget: Duration,
         stop: CancellationToken,
     ) -> Result<Self, RobotError> {
@@ -206,7 +240,15 @@ impl SimRobot {
                 range_cells: model.sensor_range_m / frame.resolution,
                 field_of_view: model.field_of_view_rad,
             },
-            own: vec![0; frame.len()],
+            own: OccupancyGrid::unknown(frame),
+            known_reachable: 0,
+            log: Vec::new(),
+            sent: vec![0; team_size],
+            seen: vec![false; frame.len()],
+            dirty: None,
+            limited,
+            stride: 0.0,
+            peers: Vec::new(),
             seq: robot.last_map_seq,
             task: None,
             acknowledged_task: None,
@@ -228,20 +270,33 @@ impl SimRobot {
         })
     }
 
-    /// One time step: move, sense, report, adopt the assignment.
-    pub async fn step(&mut self, world: &World, team: &mut TeamMap) -> Result<StepOutcome, RobotError> {
+    /// One time step: move (unless `blocked`: interference), sense, report,
+    /// adopt the assignment.
+    pub async fn step(&mut self, world: &World, team: &mut TeamMap, blocked: bool) -> Result<StepOutcome, RobotError> {
         let mut outcome = StepOutcome::default();
-        // Move one cell along the path.
-        if let Some(next) = self.path.pop_front() {
+        // Move along the path, as many cells as the speed allows this step.
+        self.stride += self.capabilities.speed_mps / REFERENCE_SPEED_MPS;
+        while self.stride >= 1.0 {
+            self.stride -= 1.0;
+            if blocked {
+                continue;
+            }
+            let Some(next) = self.path.pop_front() else {
+                self.stride = self.stride.min(1.0);
+                break;
+            };
             if world.is_blocked(next) {
                 self.path.clear();
-            } else {
-                let (dx, dy) = (next.x - self.cell.x, next.y - self.cell.y);
-                self.heading = f64::from(dy).atan2(f64::from(dx));
-                self.distance_m += self.cell.distance(next) * world.frame.resolution;
-                self.cell = next;
-                self.trajectory.push(next);
-                outcome.moved = true;
+                break;
+            }
+            let (dx, dy) = (next.x - self.cell.x, next.y - self.cell.y);
+            self.heading = f64::from(dy).atan2(f64::from(dx));
+            self.distance_m += self.cell.distance(next) * world.frame.resolution;
+            self.cell = next;
+            self.trajectory.push(next);
+            outcome.moved = true;
+            if self.task.is_some_and(|t| t.target == next) {
+                break;
             }
         }
         // Arrived: say so; the answer carries the next assignment.
@@ -249,7 +304,8 @@ impl SimRobot {
             let assignment = self.heartbeat(world, pb::RobotState::Arrived, task.id, "").await?;
             self.adopt(assignment, world, team).await?;
         }
-        let patch = self.sense(world, team);
+        self.sense(world, team);
+        let patch = self.patch();
         let assignment = self.send_update(world, patch).await?;
         let completed = assignment.mission_state == pb::MissionState::Completed as i32;
         self.adopt(assignment, world, team).await?;
@@ -275,10 +331,11 @@ impl SimRobot {
         team: &TeamMap,
         spacing_m: f64,
     ) -> Result<pb::Assignment, RobotError> {
-        let frontier = FrontierMap::detect(&team.grid).cells();
-        let traversal = TraversalMap::free_space(&team.grid, self.capabilities.footprint_radius_m);
+        let map = if self.limited { &self.own } else { &team.grid };
+        let frontier = FrontierMap::detect(map).cells();
+        let traversal = TraversalMap::free_space(map, self.capabilities.footprint_radius_m);
         let costs = cost_map(&traversal, &[self.cell]);
-        let bids = compute_bids(&team.grid, &frontier, &costs, &self.capabilities, spacing_m);
+        let bids = compute_bids(map, &frontier, &costs, &self.capabilities, spacing_m);
         let frame = world.frame;
         let corner = |x: i32, y: i32| pb::Point {
             x: frame.origin.x + f64::from(x) * frame.resolution,
@@ -315,12 +372,11 @@ impl SimRobot {
         })
     }
 
-    /// Senses from the current cell; returns the patch of cells the robot's
-    /// own map gained or changed.
-    fn sense(&mut self, world: &World, team: &mut TeamMap) -> Option<pb::MapPatch> {
+    /// Senses from the current cell into its map, its log and the team's map.
+    fn sense(&mut self, world: &World, team: &mut TeamMap) {
         let frame = world.frame;
-        let mut changed: Option<CellRect> = None;
         let own = &mut self.own;
+        let (log, dirty, known, seen) = (&mut self.log, &mut self.dirty, &mut self.known_reachable, &mut self.seen);
         self.sensor.scan(
             self.cell,
             self.heading,
@@ -330,37 +386,62 @@ impl SimRobot {
                     return;
                 }
                 let i = frame.index(cell);
-                let value = if hit { 2 } else { 1 };
-                if own[i] == value {
-                    return;
-                }
-                let first_time = own[i] == 0;
-                own[i] = value;
-                changed = Some(match changed {
-                    Some(r) => r.including(cell),
-                    None => CellRect::new(cell.x, cell.y, 1, 1),
-                });
-                if first_time {
+                // Overlap counts robots that swept a cell, whatever they knew of it.
+                if !seen[i] {
+                    seen[i] = true;
                     team.sensed_by[i] = team.sensed_by[i].saturating_add(1);
                 }
+                if own.class(cell) != CellClass::Unknown {
+                    return;
+                }
+                own.set(cell, if hit { KNOWN_OCCUPIED } else { KNOWN_FREE });
+                log.push((i as u32, hit));
+                *dirty = Some(dirty.map_or(CellRect::new(cell.x, cell.y, 1, 1), |r| r.including(cell)));
+                if world.reachable[i] {
+                    *known += 1;
+                }
                 if team.grid.class(cell) == CellClass::Unknown {
-                    team.grid.set(cell, if hit { 95 } else { 5 });
+                    team.grid.set(cell, if hit { KNOWN_OCCUPIED } else { KNOWN_FREE });
                     if world.reachable[i] {
                         team.known_reachable += 1;
                     }
                 }
             },
         );
-        let rect = changed?;
+    }
+
+    /// Passes the measurements `to` does not have yet, and marks them sent
+    /// (Burgard et al. 2005, §III: a per-peer log).
+    pub fn share_with(&mut self, to: &mut SimRobot, to_index: usize, world: &World) {
+        let frame = world.frame;
+        let start = self.sent[to_index];
+        for &(i, occupied) in &self.log[start..] {
+            let cell = frame.cell(i as usize);
+            if to.own.class(cell) == CellClass::Unknown {
+                to.own.set(cell, if occupied { KNOWN_OCCUPIED } else { KNOWN_FREE });
+                to.dirty = Some(to.dirty.map_or(CellRect::new(cell.x, cell.y, 1, 1), |r| r.including(cell)));
+                if world.reachable[i as usize] {
+                    to.known_reachable += 1;
+                }
+            }
+        }
+        self.sent[to_index] = self.log.len();
+    }
+
+    /// The cells changed since the last update, as a patch of its map:
+    /// only its own measurements with unlimited communication (the executive
+    /// fuses the robots'), all it knows with limited communication.
+    fn patch(&mut self) -> Option<pb::MapPatch> {
+        let rect = self.dirty.take()?;
         let mut values = Vec::with_capacity(rect.area() as usize);
         let mut unknown = Vec::with_capacity(rect.area() as usize);
         for cell in rect.cells() {
-            match self.own[frame.index(cell)] {
-                1 => {
+            match self.own.value(cell) {
+                KNOWN_FREE => {
                     values.push(P_FREE);
                     unknown.push(0);
                 }
-                2 => {
+                KNOWN_OCCUPIED => {
                     values.push(P_OCCUPIED);
                     unknown.push(0);
                 }
@@ -397,6 +478,8 @@ impl SimRobot {
             seq: self.seq,
             pose: Some(self.pose(world)),
             patches: patch.into_iter().collect(),
+            peers: self.peers.clone(),
+            peers_reported: self.limited,
         };
         let client = self.client.clone();
         let result = retry("UpdateMap", self.retry_budget, || {
@@ -444,6 +527,8 @@ impl SimRobot {
             state: state as i32,
             task_id,
             reason: reason.to_owned(),
+            peers: self.peers.clone(),
+            peers_reported: self.limited,
         };
         let response = retry("Heartbeat", self.retry_budget, || {
             let mut client = self.client.clone();
@@ -477,7 +562,13 @@ impl SimRobot {
             let Some(task) = task else {
                 return Ok(());
             };
-            let path = shortest_path(&world.frame, self.cell, task.target, |c| team.grid.class(c) == CellClass::Free);
+            let map = if self.limited { &self.own } else { &team.grid };
+            let path = if self.capabilities.footprint_radius_m > 0.0 {
+                let traversal = TraversalMap::free_space(map, self.capabilities.footprint_radius_m);
+                shortest_path(&world.frame, self.cell, task.target, |c| traversal.passable(c))
+            } else {
+                shortest_path(&world.frame, self.cell, task.target, |c| map.class(c) == CellClass::Free)
+            };
             match path {
                 Some(path) => {
                     self.path = path.into_iter().skip(1).collect();

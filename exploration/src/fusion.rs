@@ -325,6 +325,40 @@ impl MapFusion {
         Ok(change)
     }
 
+    /// The grid as the given layers alone know it: per cell, the value of
+    /// the most confident of them. Used when robots send their whole
+    /// knowledge (their own measurements and what peers told them), where
+    /// summing layers would count a shared measurement once per robot that
+    /// holds it (Burgard et al. 2005, §III).
+    ///
+    /// Complexity: O(cells of the layers' tiles).
+    pub fn grid_of(&self, layers: &[LayerId]) -> OccupancyGrid {
+        let mut best = vec![f32::NAN; self.frame.len()];
+        let width = self.frame.width as usize;
+        for id in layers {
+            let Some(layer) = self.layers.get(id) else { continue };
+            for (t, tile) in layer.tiles.iter().enumerate() {
+                let Some(tile) = tile else { continue };
+                let (tx, ty) = ((t % self.tiles_x) * TILE, (t / self.tiles_x) * TILE);
+                for (k, &v) in tile.iter().enumerate() {
+                    if v.is_nan() {
+                        continue;
+                    }
+                    let (x, y) = (tx + (k & (TILE - 1)), ty + (k >> TILE_SHIFT));
+                    if x >= width || y >= self.frame.height as usize {
+                        continue;
+                    }
+                    let slot = &mut best[y * width + x];
+                    if slot.is_nan() || v.abs() > slot.abs() {
+                        *slot = v;
+                    }
+                }
+            }
+        }
+        let cells = best.iter().map(|&v| if v.is_nan() { UNKNOWN } else { fused_percent(v) }).collect();
+        OccupancyGrid::from_cells(self.frame, cells)
+    }
+
     /// Number of layers (robots that sent at least one patch).
     pub fn layer_count(&self) -> usize {
         self.layers.len()
@@ -395,6 +429,20 @@ mod tests {
         assert_eq!(fusion.grid().value(Cell::new(0, 0)), 12);
         assert_eq!(fusion.grid().value(Cell::new(1, 0)), 97);
         assert_eq!(change.changed, Some(CellRect::new(1, 0, 1, 1)));
+    }
+
+    #[test]
+    fn a_grid_of_some_layers_takes_the_most_confident_value() {
+        let mut fusion = MapFusion::new(frame());
+        fusion.apply(1, &patch(CellRect::new(0, 0, 2, 1), 0.3)).unwrap();
+        fusion.apply(2, &patch(CellRect::new(1, 0, 2, 1), 0.95)).unwrap();
+        let only_one = fusion.grid_of(&[1]);
+        assert_eq!(only_one.value(Cell::new(2, 0)), UNKNOWN);
+        assert_eq!(only_one.value(Cell::new(1, 0)), 30);
+        let both = fusion.grid_of(&[1, 2]);
+        assert_eq!(both.value(Cell::new(1, 0)), 95, "the more confident layer wins, no double count");
+        assert_eq!(both.value(Cell::new(0, 0)), 30);
+        assert_eq!(fusion.grid_of(&[]).known_cells(), 0);
     }
 
     #[test]

@@ -80,6 +80,8 @@ pub struct MissionSpec {
     pub policy: PolicyConfig,
     /// Its replanning triggers.
     pub replan: ReplanSettings,
+    /// Each connected sub-team is coordinated apart (Burgard et al. 2005, §II-D).
+    pub scoped_by_communication: bool,
 }
 
 /// Where a mission is in its life.
@@ -213,6 +215,8 @@ pub struct MapUpdate {
     pub pose: Pose,
     /// Validated patches (not yet checked against the mission's grid).
     pub patches: Vec<Patch>,
+    /// The robots it can communicate with, when it said.
+    pub peers: Option<Vec<RobotId>>,
 }
 
 /// A robot's report.
@@ -226,6 +230,8 @@ pub struct Heartbeat {
     pub task_id: Option<TaskId>,
     /// Why it failed, if it did.
     pub reason: String,
+    /// The robots it can communicate with, when it said.
+    pub peers: Option<Vec<RobotId>>,
 }
 
 /// One bid of a robot (Simmons et al. 2000, §4.1).

@@ -34,6 +34,7 @@ async fn sigterm_drains_streams_and_exits_cleanly() {
             frame: Some(pb::MapFrame { resolution: 0.1, origin: None, width: 10, height: 10 }),
             policy: None,
             replan: None,
+            scoped_by_communication: false,
         })
         .await
         .unwrap()

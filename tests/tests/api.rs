@@ -147,6 +147,7 @@ async fn bad_missions_and_robots_are_refused() {
             params: params.iter().map(|(k, v)| ((*k).to_owned(), *v)).collect(),
         }),
         replan: None,
+        scoped_by_communication: false,
     };
     let cases = [
         ("zero width", create(Some(common::frame(0, 10)), "burgard", &[]), "frame.width is 0"),
@@ -250,6 +251,7 @@ async fn an_update_is_applied_once_and_replans_push_assignments() {
             state: pb::RobotState::Arrived as i32,
             task_id: assignment.task_id,
             reason: String::new(),
+            ..Default::default()
         })
         .await
         .unwrap()

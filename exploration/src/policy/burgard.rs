@@ -79,8 +79,17 @@ impl Burgard {
     ) -> Vec<Option<Target>> {
         let grid = input.grid;
         let resolution = grid.frame().resolution;
-        // Line 3: all utilities start at 1.
+        // Line 3: all utilities start at 1, less what the targets of robots
+        // out of reach already cover (§II-D).
         let mut utility = vec![1.0f64; frontier.len()];
+        for &(held, range) in input.reserved {
+            let range_cells_sq = ((range / resolution) * (range / resolution)).ceil() as i64;
+            for (u, &other) in utility.iter_mut().zip(frontier) {
+                if held.distance_squared(other) <= range_cells_sq {
+                    *u -= covered(grid, held, other, range);
+                }
+            }
+        }
         let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
         // Line 4: while a robot is left without a target.
         loop {
@@ -194,6 +203,7 @@ mod tests {
                 threads: 1,
                 bids: &[Vec::new(), Vec::new()],
                 seed: 0,
+                reserved: &[],
             };
             let plan = burgard().plan(&input, &mut CostCache::new(&grid));
             let first = plan.targets[0].unwrap();

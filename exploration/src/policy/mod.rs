@@ -90,6 +90,11 @@ pub struct PlanningInput<'a> {
     pub bids: &'a [Vec<Bid>],
     /// Seed of the policy's random choices (randomized search).
     pub seed: u64,
+    /// Targets already held by robots outside this planning (out of
+    /// communication range: Burgard et al. 2005, §II-D, "each robot stores
+    /// the latest target locations assigned to other robots"), with the
+    /// sensor range of the robot holding each.
+    pub reserved: &'a [(Cell, f64)],
 }
 
 /// A robot's estimate for one candidate target (Simmons et al. 2000, §4.1).
@@ -313,7 +318,8 @@ pub(crate) mod testing {
         let frontier = FrontierMap::detect(grid);
         let clusters = clusters(&frontier, 1);
         let bids = vec![Vec::new(); robots.len()];
-        let input = PlanningInput { grid, clusters: &clusters, robots, threads: 1, bids: &bids, seed: 7 };
+        let input =
+            PlanningInput { grid, clusters: &clusters, robots, threads: 1, bids: &bids, seed: 7, reserved: &[] };
         let mut cache = CostCache::new(grid);
         let plan = policy.plan(&input, &mut cache);
         assert_eq!(plan.targets.len(), robots.len());

@@ -274,7 +274,8 @@ mod tests {
         let frontier = FrontierMap::detect(grid);
         let clusters = clusters(&frontier, 1);
         let bids = vec![Vec::new(); robots.len()];
-        let input = PlanningInput { grid, clusters: &clusters, robots, threads: 1, bids: &bids, seed: 0 };
+        let input =
+            PlanningInput { grid, clusters: &clusters, robots, threads: 1, bids: &bids, seed: 0, reserved: &[] };
         policy.plan(&input, &mut CostCache::new(grid)).targets
     }
 

@@ -33,6 +33,8 @@ use crate::store::{Changeset, LoggedPatch, MissionCounters, TaskChange};
 struct RobotSlot {
     record: RobotRecord,
     watch: watch::Sender<Assignment>,
+    /// Whom it can communicate with, as it last said.
+    peers: Vec<RobotId>,
 }
 
 /// A mission's live state.
@@ -51,6 +53,9 @@ pub(crate) struct Mission {
     last_replan: Instant,
     frontier_at_replan: usize,
     frontier_churn: usize,
+    /// Patches since the last replanning that may have changed some robot's
+    /// own map without changing the fused one (missions scoped by communication).
+    layer_changes: usize,
     /// Why the next operation must replan, when an event asked for it.
     pending_replan: Option<String>,
     /// Tasks whose target was found explored at a replanning (not to trigger again).
@@ -60,28 +65,69 @@ pub(crate) struct Mission {
 /// Everything needed to run a policy off the mission's lock.
 #[derive(Debug)]
 pub(crate) struct PlanningJob {
-    grid: OccupancyGrid,
-    clusters: Vec<FrontierCluster>,
-    robots: Vec<RobotView>,
-    bids: Vec<Vec<PolicyBid>>,
+    /// The robots in the mission's order: the plan's order.
+    order: Vec<RobotId>,
+    /// One part per coordination scope: the whole team, or each connected
+    /// sub-team when the mission is scoped by communication.
+    parts: Vec<PlanningPart>,
     policy: Arc<dyn Policy>,
     threads: usize,
     seed: u64,
 }
 
+/// What a planning job produced.
+#[derive(Debug)]
+pub(crate) struct JobOutcome {
+    pub(crate) plan: Plan,
+    /// Whether some scope holds a map with no frontier left: the mission is
+    /// complete (Burgard et al. 2005 §VI-D: as soon as the known area in the
+    /// map of one robot covers the whole environment).
+    pub(crate) explored: bool,
+}
+
+/// One coordination scope: its robots and the map they hold.
+#[derive(Debug)]
+struct PlanningPart {
+    grid: OccupancyGrid,
+    clusters: Vec<FrontierCluster>,
+    robots: Vec<RobotView>,
+    bids: Vec<Vec<PolicyBid>>,
+    /// Targets of robots outside the scope, with their sensor ranges.
+    reserved: Vec<(exploration::grid::Cell, f64)>,
+    /// The map holds known cells and no frontier.
+    explored: bool,
+}
+
 impl PlanningJob {
-    /// Runs the policy; CPU-bound.
-    pub(crate) fn run(self) -> Plan {
-        let input = PlanningInput {
-            grid: &self.grid,
-            clusters: &self.clusters,
-            robots: &self.robots,
-            threads: self.threads,
-            bids: &self.bids,
-            seed: self.seed,
-        };
-        let mut cache = CostCache::new(&self.grid);
-        self.policy.plan(&input, &mut cache)
+    /// Runs the policy on every part; CPU-bound.
+    pub(crate) fn run(self) -> JobOutcome {
+        let mut targets = vec![None; self.order.len()];
+        let mut segmentation = None;
+        let mut largest = 0;
+        for part in &self.parts {
+            let input = PlanningInput {
+                grid: &part.grid,
+                clusters: &part.clusters,
+                robots: &part.robots,
+                threads: self.threads,
+                bids: &part.bids,
+                seed: self.seed,
+                reserved: &part.reserved,
+            };
+            let mut cache = CostCache::new(&part.grid);
+            let plan = self.policy.plan(&input, &mut cache);
+            for (robot, target) in part.robots.iter().zip(plan.targets) {
+                if let Some(slot) = self.order.iter().position(|id| *id == robot.id) {
+                    targets[slot] = target;
+                }
+            }
+            if part.robots.len() > largest {
+                largest = part.robots.len();
+                segmentation = plan.segmentation;
+            }
+        }
+        let explored = self.parts.iter().any(|part| part.explored);
+        JobOutcome { plan: Plan { targets, segmentation }, explored }
     }
 }
 
@@ -115,6 +161,7 @@ impl Mission {
             bids: BTreeMap::new(),
             last_replan: Instant::now(),
             frontier_churn: 0,
+            layer_changes: 0,
             pending_replan: Some("executive restarted".to_owned()),
             explored_tasks: std::collections::HashSet::new(),
             record,
@@ -179,7 +226,7 @@ impl Mission {
         let assignment = self.assignment_for(&record);
         let (watch, _) = watch::channel(assignment);
         self.names.insert(record.name.clone(), record.id);
-        self.robots.insert(record.id, RobotSlot { record, watch });
+        self.robots.insert(record.id, RobotSlot { record, watch, peers: Vec::new() });
         self.pending_replan = Some("robot joined".to_owned());
     }
 
@@ -394,6 +441,7 @@ impl Mission {
         for logged in &changes.patches {
             match self.fusion.apply(logged.robot_id, &logged.patch) {
                 Ok(change) => {
+                    self.layer_changes += 1;
                     self.known_cells += change.newly_known;
                     if let Some(rect) = change.changed {
                         let delta = self.frontier.update(self.fusion.grid(), rect);
@@ -462,6 +510,7 @@ impl Mission {
         }
         let frame = &self.record.spec.frame;
         let settings = &self.record.spec.replan;
+        let scoped = self.record.spec.scoped_by_communication;
         for slot in self.robots.values() {
             let robot = &slot.record;
             if let Some(target) = self.target_of(robot) {
@@ -476,13 +525,17 @@ impl Mission {
                 }
             } else if self.frontier_churn > 0 && !self.frontier.is_empty() {
                 return Some(format!("robot {} idle and the frontier changed", robot.id));
+            } else if scoped && self.layer_changes > 0 && self.record.state != MissionState::Completed {
+                // Its sub-team's map may still have a frontier the fused map has not.
+                return Some(format!("robot {} idle and its sub-team's map changed", robot.id));
             }
         }
         let threshold = ((self.frontier_at_replan as f64) * settings.frontier_change).max(1.0);
         if self.frontier_churn as f64 >= threshold {
             return Some(format!("frontier changed by {} cells", self.frontier_churn));
         }
-        if self.frontier_churn > 0 && now.duration_since(self.last_replan) >= settings.interval {
+        let changed = self.frontier_churn > 0 || (scoped && self.layer_changes > 0);
+        if changed && now.duration_since(self.last_replan) >= settings.interval {
             return Some("replanning interval elapsed".to_owned());
         }
         if self.record.state == MissionState::Completed && !self.frontier.is_empty() {
@@ -494,29 +547,54 @@ impl Mission {
     /// The inputs of a replanning.
     pub(crate) fn planning_job(&self, threads: usize) -> PlanningJob {
         let frame = &self.record.spec.frame;
-        let robots = self
-            .robots
-            .values()
-            .map(|s| {
-                let r = &s.record;
-                RobotView {
-                    id: r.id,
-                    cell: frame.cell_from_world_unchecked(&r.pose.position),
-                    capabilities: r.capabilities,
-                    current: r.current_task.and_then(|t| self.open_tasks.get(&t)).and_then(|task| {
-                        frame
-                            .cell_from_world(&task.target)
-                            .map(|target| CurrentTask { target, gain_region: task.gain_region })
-                    }),
-                }
-            })
-            .collect();
-        let bids = self.robots.keys().map(|id| self.bids.get(id).cloned().unwrap_or_default()).collect();
+        let view = |r: &RobotRecord| RobotView {
+            id: r.id,
+            cell: frame.cell_from_world_unchecked(&r.pose.position),
+            capabilities: r.capabilities,
+            current: r.current_task.and_then(|t| self.open_tasks.get(&t)).and_then(|task| {
+                frame.cell_from_world(&task.target).map(|target| CurrentTask { target, gain_region: task.gain_region })
+            }),
+        };
+        let min_size = self.record.spec.policy.min_frontier_size();
+        let bids_of = |id: &RobotId| self.bids.get(id).cloned().unwrap_or_default();
+        let parts = if self.record.spec.scoped_by_communication {
+            self.sub_teams()
+                .into_iter()
+                .map(|members| {
+                    let grid = self.fusion.grid_of(&members);
+                    let frontier = FrontierMap::detect(&grid);
+                    let reserved = self
+                        .robots
+                        .values()
+                        .filter(|s| !members.contains(&s.record.id))
+                        .filter_map(|s| {
+                            let target = self.target_of(&s.record)?;
+                            Some((frame.cell_from_world(&target)?, s.record.capabilities.sensor_range_m))
+                        })
+                        .collect();
+                    PlanningPart {
+                        clusters: clusters(&frontier, min_size),
+                        explored: frontier.is_empty() && grid.cells().iter().any(|&c| c != exploration::grid::UNKNOWN),
+                        grid,
+                        robots: members.iter().map(|id| view(&self.robots[id].record)).collect(),
+                        bids: members.iter().map(bids_of).collect(),
+                        reserved,
+                    }
+                })
+                .collect()
+        } else {
+            vec![PlanningPart {
+                grid: self.fusion.grid().clone(),
+                clusters: clusters(&self.frontier, min_size),
+                robots: self.robots.values().map(|s| view(&s.record)).collect(),
+                bids: self.robots.keys().map(bids_of).collect(),
+                reserved: Vec::new(),
+                explored: self.known_cells > 0 && self.frontier.is_empty(),
+            }]
+        };
         PlanningJob {
-            grid: self.fusion.grid().clone(),
-            clusters: clusters(&self.frontier, self.record.spec.policy.min_frontier_size()),
-            robots,
-            bids,
+            order: self.robots.keys().copied().collect(),
+            parts,
             policy: self.policy.clone(),
             threads,
             // Randomized policies draw from the mission and its replanning count: reproducible.
@@ -524,11 +602,55 @@ impl Mission {
         }
     }
 
+    /// The connected sub-teams of the communication graph the robots
+    /// reported, each in robot order; robots that reported no peers are alone.
+    fn sub_teams(&self) -> Vec<Vec<RobotId>> {
+        let ids: Vec<RobotId> = self.robots.keys().copied().collect();
+        let mut team: BTreeMap<RobotId, usize> = ids.iter().enumerate().map(|(k, id)| (*id, k)).collect();
+        let root = |team: &BTreeMap<RobotId, usize>, mut k: usize| {
+            while ids[k] != ids[team[&ids[k]]] {
+                k = team[&ids[k]];
+            }
+            k
+        };
+        for slot in self.robots.values() {
+            for peer in &slot.peers {
+                if team.contains_key(peer) {
+                    let (a, b) = (root(&team, team[&slot.record.id]), root(&team, team[peer]));
+                    if a != b {
+                        let (low, high) = (a.min(b), a.max(b));
+                        team.insert(ids[high], low);
+                    }
+                }
+            }
+        }
+        let mut groups: BTreeMap<usize, Vec<RobotId>> = BTreeMap::new();
+        for (k, id) in ids.iter().enumerate() {
+            groups.entry(root(&team, k)).or_default().push(*id);
+        }
+        groups.into_values().collect()
+    }
+
+    /// Records whom a robot can communicate with now.
+    pub(crate) fn set_peers(&mut self, robot: RobotId, peers: Vec<RobotId>) {
+        let Some(slot) = self.robots.get_mut(&robot).filter(|s| s.peers != peers) else { return };
+        slot.peers = peers;
+        if self.record.spec.scoped_by_communication {
+            self.pending_replan = Some(format!("robot {robot}'s sub-team changed"));
+        }
+    }
+
     /// Describes what a plan changes: tasks that end, tasks that start, robots
     /// whose assignment moves, and the mission's state.
-    pub(crate) fn prepare_plan(&self, plan: &Plan, reason: &str, now: Timestamp, task_ids: &AtomicU64) -> Changeset {
+    pub(crate) fn prepare_plan(
+        &self,
+        outcome: &JobOutcome,
+        reason: &str,
+        now: Timestamp,
+        task_ids: &AtomicU64,
+    ) -> Changeset {
         let frame = &self.record.spec.frame;
-        let completed = self.known_cells > 0 && self.frontier.is_empty();
+        let (plan, completed) = (&outcome.plan, outcome.explored);
         let mut changes = Changeset { at: Some(now), ..Changeset::default() };
         let policy = self.record.spec.policy.name();
         for (slot, target) in self.robots.values().zip(&plan.targets) {
@@ -619,6 +741,7 @@ impl Mission {
         self.last_replan = now;
         self.frontier_at_replan = self.frontier.len();
         self.frontier_churn = 0;
+        self.layer_changes = 0;
         self.pending_replan = None;
     }
 }

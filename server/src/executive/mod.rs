@@ -261,9 +261,13 @@ impl Executive {
     pub async fn heartbeat(&self, robot_id: RobotId, heartbeat: Heartbeat) -> Result<Assignment, Error> {
         let handle = self.mission_of_robot(robot_id)?;
         let mut mission = handle.lock().await;
+        let peers = heartbeat.peers.clone();
         let changes = mission.prepare_heartbeat(robot_id, heartbeat, Timestamp::now())?;
         self.store.commit(&changes).await?;
         mission.apply(changes);
+        if let Some(peers) = peers {
+            mission.set_peers(robot_id, peers);
+        }
         self.replan_if_due(&mut mission).await?;
         mission.assignment(robot_id)
     }
@@ -273,10 +277,14 @@ impl Executive {
         let handle = self.mission_of_robot(robot_id)?;
         let mut mission = handle.lock().await;
         let seq = update.seq;
+        let peers = update.peers.clone();
         let changes = mission.prepare_update(robot_id, update, Timestamp::now())?;
         // Durable before it is applied or acknowledged.
         self.store.commit(&changes).await?;
         mission.apply(changes);
+        if let Some(peers) = peers {
+            mission.set_peers(robot_id, peers);
+        }
         self.replan_if_due(&mut mission).await?;
         Ok(MapUpdateOutcome {
             applied_seq: seq,
@@ -384,11 +392,11 @@ impl Executive {
         };
         let job = mission.planning_job(self.settings.planner_threads);
         let started = std::time::Instant::now();
-        let plan = tokio::task::spawn_blocking(move || job.run())
+        let outcome = tokio::task::spawn_blocking(move || job.run())
             .await
             .map_err(|e| Error::Internal(format!("planner task failed: {e}")))?;
         let planning_ms = started.elapsed().as_secs_f64() * 1e3;
-        let changes = mission.prepare_plan(&plan, &reason, Timestamp::now(), &self.next_task_id);
+        let changes = mission.prepare_plan(&outcome, &reason, Timestamp::now(), &self.next_task_id);
         self.store.commit(&changes).await?;
         let reassigned = changes.new_tasks.len();
         mission.apply(changes);

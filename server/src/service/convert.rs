@@ -161,6 +161,7 @@ impl TryFrom<pb::CreateMissionRequest> for MissionSpec {
             frame: frame(r.frame.ok_or_else(|| invalid("frame is required"))?)?,
             policy: policy(r.policy)?,
             replan: replan(r.replan)?,
+            scoped_by_communication: r.scoped_by_communication,
         })
     }
 }
@@ -193,6 +194,7 @@ impl From<&MissionSummary> for pb::Mission {
             frontier_cells: m.frontier_cells,
             replans: r.replans,
             map_updates: r.map_updates,
+            scoped_by_communication: r.spec.scoped_by_communication,
         }
     }
 }
@@ -320,7 +322,13 @@ impl TryFrom<pb::HeartbeatRequest> for Heartbeat {
         if matches!(state, RobotState::Arrived | RobotState::Failed) && task_id.is_none() {
             return Err(invalid("ARRIVED and FAILED must name the task they refer to in task_id"));
         }
-        Ok(Self { pose: pose(r.pose, "pose")?, state, task_id, reason: r.reason.chars().take(500).collect() })
+        Ok(Self {
+            pose: pose(r.pose, "pose")?,
+            state,
+            task_id,
+            reason: r.reason.chars().take(500).collect(),
+            peers: r.peers_reported.then_some(r.peers),
+        })
     }
 }
 
@@ -367,7 +375,7 @@ impl TryFrom<pb::UpdateMapRequest> for MapUpdate {
             .enumerate()
             .map(|(i, p)| PatchInput::try_from(p).map(|p| p.0).map_err(|e| invalid(format!("patch {i}: {e}"))))
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(Self { seq: r.seq, pose: pose(r.pose, "pose")?, patches })
+        Ok(Self { seq: r.seq, pose: pose(r.pose, "pose")?, patches, peers: r.peers_reported.then_some(r.peers) })
     }
 }
 
@@ -594,6 +602,7 @@ mod tests {
             state: pb::RobotState::Arrived as i32,
             task_id: 0,
             reason: String::new(),
+            ..Default::default()
         };
         assert!(Heartbeat::try_from(request.clone()).is_err());
         assert!(Heartbeat::try_from(pb::HeartbeatRequest { task_id: 3, ..request.clone() }).is_ok());

@@ -94,6 +94,7 @@ fn mission_from_row(row: &SqliteRow) -> Result<MissionRecord, StoreError> {
                 interval: Duration::from_secs_f64(row.try_get("replan_interval_s")?),
                 frontier_change: row.try_get("replan_frontier_change")?,
             },
+            scoped_by_communication: row.try_get::<i64, _>("scoped_by_communication")? != 0,
         },
         state: MissionState::parse(&state).ok_or_else(|| corrupt(format!("mission {id}: state {state:?}")))?,
         replans: row.try_get::<i64, _>("replans")? as u64,
@@ -325,8 +326,8 @@ impl Store for SqliteStore {
         let row = sqlx::query(
             "INSERT INTO missions (name, resolution, origin_x, origin_y, width, height, policy, policy_params,
                                    replan_distance_m, replan_interval_s, replan_frontier_change, state,
-                                   created_at, updated_at)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, 'active', ?12, ?12)
+                                   created_at, updated_at, scoped_by_communication)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, 'active', ?12, ?12, ?13)
              RETURNING *",
         )
         .bind(&spec.name)
@@ -341,6 +342,7 @@ impl Store for SqliteStore {
         .bind(spec.replan.interval.as_secs_f64())
         .bind(spec.replan.frontier_change)
         .bind(now.millis())
+        .bind(i64::from(spec.scoped_by_communication))
         .fetch_one(&self.pool)
         .await?;
         mission_from_row(&row)
@@ -677,6 +679,7 @@ mod tests {
             frame: GridFrame::new(0.1, Point2::new(-1.0, -2.0), 40, 30),
             policy: PolicyConfig::default_for("burgard").unwrap(),
             replan: ReplanSettings::default(),
+            scoped_by_communication: true,
         }
     }
 

@@ -106,6 +106,7 @@ pub async fn create_mission(
             frame: Some(frame(width, height)),
             policy: Some(pb::PolicySpec { name: policy.into(), params: Default::default() }),
             replan: None,
+            scoped_by_communication: false,
         })
         .await
         .unwrap()
@@ -146,7 +147,7 @@ pub fn patch(x: u32, y: u32, width: u32, height: u32, p: f32) -> pb::MapPatch {
 }
 
 pub fn update(robot_id: u64, seq: u64, x: f64, y: f64, patches: Vec<pb::MapPatch>) -> pb::UpdateMapRequest {
-    pb::UpdateMapRequest { robot_id, seq, pose: Some(pb::Pose { x, y, theta: 0.0 }), patches }
+    pb::UpdateMapRequest { robot_id, seq, pose: Some(pb::Pose { x, y, theta: 0.0 }), patches, ..Default::default() }
 }
 
 /// Waits until the executive at `url` answers health checks as SERVING.

@@ -1,0 +1,107 @@
+//! The experiment runner end to end: a small matrix of real missions, its
+//! CSV files, plots, pictures and report; resuming; runs that fail or hang
+//! recorded as such without stopping the rest; limited communication
+//! through the real service.
+
+use std::path::Path;
+
+use client_sim::experiment::{read_runs, run_experiment};
+use client_sim::fleet::{CommRange, RunConfig, WorldSpec};
+use client_sim::generate::Generator;
+
+fn workspace() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_ci_experiment_runs_end_to_end_and_resumes() {
+    let out = tempfile::tempdir().unwrap();
+    let config = workspace().join("experiments/ci-small.toml");
+    run_experiment(&config, out.path(), 2, None, false).await.unwrap();
+    let rows = read_runs(out.path()).unwrap();
+    assert_eq!(rows.len(), 8, "1 world × 2 team sizes × 2 policies × 2 seeds");
+    assert!(rows.iter().all(|r| r["status"] == "ok" && r["completed"] == "true"), "{rows:?}");
+    let summary = std::fs::read_to_string(out.path().join("summary.csv")).unwrap();
+    assert_eq!(summary.lines().count(), 1 + 4, "a header and one line per cell:\n{summary}");
+    assert!(summary.lines().next().unwrap().contains("steps_ci95"));
+    for plot in ["plot1-time_vs_robots-office", "plot2-coverage_over_time-office"] {
+        for ext in ["png", "svg"] {
+            let file = out.path().join(format!("{plot}.{ext}"));
+            assert!(std::fs::metadata(&file).unwrap().len() > 1000, "{}", file.display());
+        }
+    }
+    assert_eq!(std::fs::read_dir(out.path().join("pictures")).unwrap().count(), 4);
+    // Running again does nothing new: every run is there.
+    run_experiment(&config, out.path(), 2, None, false).await.unwrap();
+    assert_eq!(read_runs(out.path()).unwrap().len(), 8);
+    // The report reads the results.
+    let experiment = client_sim::experiment::Experiment::load(&config).unwrap();
+    let report = out.path().join("results.md");
+    client_sim::report::write_report(&[(experiment, out.path().to_owned())], &report).unwrap();
+    let text = std::fs::read_to_string(&report).unwrap();
+    assert!(text.contains("**Claim.**") && text.contains("| robots | nearest | burgard |"), "{text}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn runs_that_hang_or_fail_are_recorded_and_the_rest_go_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("bad.toml");
+    std::fs::write(
+        &config,
+        r#"
+name = "bad"
+seeds = 1
+time_limit_s = 0.05
+robots = [2]
+
+[[worlds]]
+name = "office"
+generator = "office"
+width_m = 25
+height_m = 20
+
+[[worlds]]
+name = "missing"
+map = "no/such/map.yaml"
+
+[[policies]]
+name = "burgard"
+"#,
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    run_experiment(&config, &out, 2, None, false).await.unwrap();
+    let rows = read_runs(&out).unwrap();
+    assert_eq!(rows.len(), 2);
+    let office = rows.iter().find(|r| r["world"] == "office").unwrap();
+    assert_eq!(office["status"], "timeout", "{office:?}");
+    assert!(office["error"].contains("time limit"));
+    let missing = rows.iter().find(|r| r["world"] == "missing").unwrap();
+    assert_eq!(missing["status"], "failed");
+    assert!(missing["error"].contains("no/such/map.yaml"), "{missing:?}");
+}
+
+/// Burgard et al. 2005 §II-D through the real service: with a tiny range the
+/// robots coordinate alone and each must see most of the map itself; with a
+/// range spanning the map they coordinate as one team.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn limited_communication_runs_through_the_service() {
+    let world = WorldSpec::Generated { generator: Generator::Office, width_m: 20.0, height_m: 15.0 };
+    let run = |range: Option<CommRange>| {
+        let world = world.clone();
+        async move {
+            let mut config = RunConfig::on(world, 3, "burgard");
+            config.cell_size = Some(0.25);
+            config.seed = 4;
+            config.start = client_sim::world::StartChoice::Random;
+            config.comm_range = range;
+            client_sim::run(&config).await.unwrap()
+        }
+    };
+    let alone = run(Some(CommRange::Metres(0.1))).await;
+    let together = run(Some(CommRange::OfDiameter(2.0))).await;
+    assert!(alone.completed && together.completed, "{alone:?} {together:?}");
+    assert_eq!(alone.comm_range_m, Some(0.1));
+    assert!(together.steps < alone.steps, "a team that talks finishes sooner: {} vs {}", together.steps, alone.steps);
+    assert_eq!(alone.updates_acknowledged, alone.map_updates);
+}
