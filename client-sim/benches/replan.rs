@@ -97,6 +97,7 @@ fn replan(c: &mut Criterion) {
                 footprint_radius_m: 0.0,
             },
             current: None,
+            excluded: Vec::new(),
         })
         .collect();
     let mut group = c.benchmark_group(format!("replan {}", world.name));

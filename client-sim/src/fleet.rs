@@ -89,6 +89,26 @@ impl CommRange {
     }
 }
 
+/// A failure injected into one robot of the team.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fault {
+    /// The robot, by index (robot-0 is 0).
+    pub robot: usize,
+    /// What goes wrong.
+    pub kind: FaultKind,
+}
+
+/// What goes wrong with a robot.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FaultKind {
+    /// From this step on it is silent and still: the executive's lease runs out.
+    Dies(u64),
+    /// From this step on it cannot move but reports: the executive sees it stall.
+    Freezes(u64),
+    /// It reports targets inside this world rectangle (min, max corners) unreachable.
+    CannotReach(exploration::math::Point2, exploration::math::Point2),
+}
+
 /// Where the team starts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Layout {
@@ -141,6 +161,15 @@ pub struct RunConfig {
     pub bid_every: u64,
     /// Print progress to stderr.
     pub progress: bool,
+    /// Failures to inject.
+    pub faults: Vec<Fault>,
+    /// The mission's lease, seconds; `None` keeps the executive's default.
+    pub lease_s: Option<f64>,
+    /// The mission's stall timeout, seconds; `None` keeps the executive's default.
+    pub stall_s: Option<f64>,
+    /// Wall-clock time per step, to watch or steer a run as it happens;
+    /// `None` runs as fast as the executive answers.
+    pub pace: Option<Duration>,
 }
 
 /// The robot of the papers' simulations: 360° sensor of 4 m, point-sized, 0.5 m/s.
@@ -179,6 +208,10 @@ impl RunConfig {
             retry_budget: Duration::from_secs(120),
             bid_every: 5,
             progress: false,
+            faults: Vec::new(),
+            lease_s: None,
+            stall_s: None,
+            pace: None,
         }
     }
 }
@@ -248,6 +281,22 @@ pub struct RunReport {
     /// The executive's last segmentation labels, for `segmentation` (not serialized).
     #[serde(skip)]
     pub segments: Option<Vec<u32>>,
+    /// With injected faults: the mission's tasks by how they ended, and the
+    /// robots the executive holds lost at the end.
+    pub fault_record: Option<FaultRecord>,
+}
+
+/// How the executive dealt with injected faults.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct FaultRecord {
+    /// Tasks by state ("reached", "failed", "released", ...).
+    pub tasks_by_state: BTreeMap<String, usize>,
+    /// Tasks failed by the executive for lack of progress.
+    pub stalled_tasks: usize,
+    /// Tasks the robots reported unreachable.
+    pub unreachable_tasks: usize,
+    /// Robots marked lost (lease expired) at the end.
+    pub lost_robots: Vec<String>,
 }
 
 /// Why a run could not be carried out.
@@ -394,7 +443,9 @@ async fn run_against(config: &RunConfig, world: World, url: &str) -> Result<RunR
         .map_err(|e| SimError::Executive(format!("bad executive URL {url}: {e}")))?
         .connect_timeout(Duration::from_secs(5))
         .connect_lazy();
-    let mut missions = MissionsClient::new(channel);
+    let bearer = exploration_proto::Bearer::new(config.token.as_deref())
+        .map_err(|e| SimError::Executive(format!("the token is not valid metadata: {e}")))?;
+    let mut missions = MissionsClient::with_interceptor(channel, bearer);
     let frame = world.frame;
     let limited = config.comm_range.is_some();
     let mission = missions
@@ -412,6 +463,11 @@ async fn run_against(config: &RunConfig, world: World, url: &str) -> Result<RunR
             }),
             replan: None,
             scoped_by_communication: limited,
+            lifecycle: Some(pb::LifecycleSettings {
+                lease_s: config.lease_s.unwrap_or(0.0),
+                stall_s: config.stall_s.unwrap_or(0.0),
+                rendezvous: None,
+            }),
         })
         .await
         .map_err(|status| SimError::Rpc { what: "CreateMission", status })?
@@ -441,6 +497,7 @@ async fn run_against(config: &RunConfig, world: World, url: &str) -> Result<RunR
         robots.push(
             SimRobot::connect(
                 url,
+                config.token.as_deref(),
                 mission.id,
                 format!("robot-{i}"),
                 start,
@@ -454,6 +511,24 @@ async fn run_against(config: &RunConfig, world: World, url: &str) -> Result<RunR
             )
             .await?,
         );
+    }
+    for fault in &config.faults {
+        let Some(robot) = robots.get_mut(fault.robot) else {
+            return Err(SimError::Config(format!(
+                "a fault names robot {} but the team has {} robots",
+                fault.robot, config.robots
+            )));
+        };
+        let mut faults = robot.faults();
+        match fault.kind {
+            FaultKind::Dies(step) => faults.dies_at = Some(step),
+            FaultKind::Freezes(step) => faults.freezes_at = Some(step),
+            FaultKind::CannotReach(min, max) => {
+                let (low, high) = (frame.cell_from_world_unchecked(&min), frame.cell_from_world_unchecked(&max));
+                faults.unreachable = Some(exploration::grid::CellRect::spanning(low, high));
+            }
+        }
+        robot.inject(faults);
     }
     let range_cells = config.comm_range.map(|r| r.metres(&world) / frame.resolution);
     let mut rng = SplitMix64::new(config.seed ^ 0x494E_5445_5246);
@@ -537,6 +612,9 @@ async fn run_against(config: &RunConfig, world: World, url: &str) -> Result<RunR
             break format!("the team learnt nothing for {} steps", step - last_progress.1);
         }
         step += 1;
+        if let Some(pace) = config.pace {
+            tokio::time::sleep(pace).await;
+        }
         if step >= config.max_steps {
             break format!("step limit {} reached", config.max_steps);
         }
@@ -557,6 +635,8 @@ async fn run_against(config: &RunConfig, world: World, url: &str) -> Result<RunR
     } else {
         None
     };
+    let fault_record =
+        if config.faults.is_empty() { None } else { Some(fault_record(&mut missions, mission.id).await?) };
     let sensed = team.sensed_by.iter().filter(|&&n| n > 0).count();
     let overlapping = team.sensed_by.iter().filter(|&&n| n > 1).count();
     let known_now = known(&team, &robots);
@@ -589,7 +669,40 @@ async fn run_against(config: &RunConfig, world: World, url: &str) -> Result<RunR
         coverage_curve: curve,
         world: Some(world),
         segments,
+        fault_record,
     })
+}
+
+async fn fault_record<T>(missions: &mut MissionsClient<T>, mission_id: u64) -> Result<FaultRecord, SimError>
+where
+    T: tonic::client::GrpcService<tonic::body::Body>,
+    T::Error: Into<tonic::codegen::StdError>,
+    T::ResponseBody: tonic::codegen::Body<Data = tonic::codegen::Bytes> + Send + 'static,
+    <T::ResponseBody as tonic::codegen::Body>::Error: Into<tonic::codegen::StdError> + Send,
+{
+    let tasks = missions
+        .list_tasks(pb::ListTasksRequest { mission_id, limit: 100_000, ..Default::default() })
+        .await
+        .map_err(|status| SimError::Rpc { what: "ListTasks", status })?
+        .into_inner()
+        .tasks;
+    let robots = missions
+        .list_robots(pb::ListRobotsRequest { mission_id })
+        .await
+        .map_err(|status| SimError::Rpc { what: "ListRobots", status })?
+        .into_inner()
+        .robots;
+    let mut record = FaultRecord::default();
+    for task in &tasks {
+        let state = pb::TaskState::try_from(task.state)
+            .map_or("unknown".to_owned(), |s| s.as_str_name().trim_start_matches("TASK_STATE_").to_lowercase());
+        *record.tasks_by_state.entry(state).or_default() += 1;
+        let last = task.transitions.last().map(|t| t.cause.as_str()).unwrap_or("");
+        record.stalled_tasks += usize::from(last.starts_with("no progress"));
+        record.unreachable_tasks += usize::from(last.contains("unreachable"));
+    }
+    record.lost_robots = robots.iter().filter(|r| r.lost).map(|r| r.name.clone()).collect();
+    Ok(record)
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@ use clap::{Args, Parser, Subcommand};
 use tracing_subscriber::EnvFilter;
 
 use client_sim::experiment::Experiment;
-use client_sim::fleet::{CommRange, Interference, Layout, WorldSpec};
+use client_sim::fleet::{CommRange, Fault, FaultKind, Interference, Layout, WorldSpec};
 use client_sim::generate::Generator;
 use client_sim::robot::RobotModel;
 use client_sim::world::StartChoice;
@@ -154,6 +154,52 @@ struct RunArgs {
     /// No progress lines.
     #[arg(long)]
     quiet: bool,
+    /// Failure injection: robot N dies (goes silent) at step S, as N@S; repeatable.
+    #[arg(long = "kill", value_parser = parse_at_step)]
+    kills: Vec<(usize, u64)>,
+    /// Failure injection: robot N freezes (reports but cannot move) at step S, as N@S; repeatable.
+    #[arg(long = "freeze", value_parser = parse_at_step)]
+    freezes: Vec<(usize, u64)>,
+    /// Failure injection: robot N reports targets in a rectangle unreachable,
+    /// as N:x0,y0,x1,y1 (metres); repeatable.
+    #[arg(long = "cannot-reach", value_parser = parse_cannot_reach)]
+    cannot_reach: Vec<(usize, Point2, Point2)>,
+    /// The mission's lease: a robot silent this long loses its task, seconds
+    /// (executive default 15).
+    #[arg(long)]
+    lease: Option<f64>,
+    /// The mission's stall timeout: a robot no closer to its target for this
+    /// long has the task failed, seconds (executive default 30).
+    #[arg(long)]
+    stall: Option<f64>,
+    /// Milliseconds of wall-clock time per step, to watch or steer the run
+    /// with coordctl as it happens; 0 runs flat out.
+    #[arg(long, default_value_t = 0)]
+    pace_ms: u64,
+}
+
+fn parse_at_step(s: &str) -> Result<(usize, u64), String> {
+    let (robot, step) = s.split_once('@').ok_or_else(|| format!("{s:?} is not ROBOT@STEP (e.g. 1@300)"))?;
+    let robot = robot.trim().trim_start_matches("robot-");
+    Ok((
+        robot.parse().map_err(|e| format!("{s:?}: the robot index is not a number: {e}"))?,
+        step.trim().parse().map_err(|e| format!("{s:?}: the step is not a number: {e}"))?,
+    ))
+}
+
+fn parse_cannot_reach(s: &str) -> Result<(usize, Point2, Point2), String> {
+    let (robot, rect) = s.split_once(':').ok_or_else(|| format!("{s:?} is not ROBOT:x0,y0,x1,y1"))?;
+    let robot = robot.trim().trim_start_matches("robot-");
+    let numbers: Vec<f64> = rect
+        .split(',')
+        .map(|v| v.trim().parse::<f64>().map_err(|e| format!("{s:?}: {v:?} is not a number: {e}")))
+        .collect::<Result<_, _>>()?;
+    let [x0, y0, x1, y1] = numbers[..] else { return Err(format!("{s:?}: give four numbers x0,y0,x1,y1")) };
+    Ok((
+        robot.parse().map_err(|e| format!("{s:?}: the robot index is not a number: {e}"))?,
+        Point2::new(x0.min(x1), y0.min(y1)),
+        Point2::new(x0.max(x1), y0.max(y1)),
+    ))
 }
 
 fn parse_param(s: &str) -> Result<(String, f64), String> {
@@ -229,6 +275,18 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
     config.max_steps = args.max_steps;
     config.retry_budget = Duration::from_secs_f64(args.retry_for);
     config.progress = !args.quiet && !args.json;
+    config.lease_s = args.lease;
+    config.stall_s = args.stall;
+    config.pace = (args.pace_ms > 0).then(|| Duration::from_millis(args.pace_ms));
+    config.faults = args
+        .kills
+        .iter()
+        .map(|&(robot, step)| Fault { robot, kind: FaultKind::Dies(step) })
+        .chain(args.freezes.iter().map(|&(robot, step)| Fault { robot, kind: FaultKind::Freezes(step) }))
+        .chain(
+            args.cannot_reach.iter().map(|&(robot, min, max)| Fault { robot, kind: FaultKind::CannotReach(min, max) }),
+        )
+        .collect();
     let report = client_sim::run(&config).await.context("the run failed")?;
     if let Some(path) = &args.picture {
         client_sim::experiment::draw_run(&report, path).with_context(|| format!("cannot write {}", path.display()))?;
@@ -318,4 +376,14 @@ fn print_summary(r: &RunReport) {
     let distances: Vec<String> = r.distance_per_robot.iter().map(|d| format!("{d:.1}")).collect();
     println!("distance per robot (m): {}", distances.join(", "));
     println!("replans {}  map updates {}  overlap {:.1} %", r.replans, r.map_updates, 100.0 * r.overlap);
+    if let Some(f) = &r.fault_record {
+        let states: Vec<String> = f.tasks_by_state.iter().map(|(s, n)| format!("{s} {n}")).collect();
+        println!("tasks: {}", states.join(", "));
+        println!(
+            "failed for lack of progress {}  reported unreachable {}  robots lost at the end: {}",
+            f.stalled_tasks,
+            f.unreachable_tasks,
+            if f.lost_robots.is_empty() { "none".to_owned() } else { f.lost_robots.join(", ") }
+        );
+    }
 }

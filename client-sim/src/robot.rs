@@ -29,6 +29,7 @@ use exploration::frontier::FrontierMap;
 use exploration::grid::{Cell, CellClass, CellRect, GridFrame, OccupancyGrid};
 use exploration::policy::{Capabilities, compute_bids};
 use exploration::visibility::RangeSensor;
+use exploration_proto::Bearer;
 use exploration_proto::v1 as pb;
 use exploration_proto::v1::fleet_client::FleetClient;
 
@@ -107,6 +108,22 @@ impl TeamMap {
 struct Task {
     id: u64,
     target: Cell,
+    /// A hold: stay, nothing to arrive at.
+    hold: bool,
+}
+
+/// A fleet client that sends a bearer token.
+type Client = FleetClient<tonic::service::interceptor::InterceptedService<Channel, Bearer>>;
+
+/// How a simulated robot misbehaves (failure injection).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Faults {
+    /// From this step on it is dead: silent, still.
+    pub dies_at: Option<u64>,
+    /// From this step on it cannot move, but reports as usual.
+    pub freezes_at: Option<u64>,
+    /// Targets inside this rectangle of cells it reports unreachable.
+    pub unreachable: Option<CellRect>,
 }
 
 /// How a step went.
@@ -118,6 +135,8 @@ pub struct StepOutcome {
     pub has_task: bool,
     /// The executive reports the mission complete.
     pub mission_completed: bool,
+    /// The robot is dead (failure injection): it did nothing.
+    pub dead: bool,
 }
 
 /// A simulated robot.
@@ -127,7 +146,7 @@ pub struct SimRobot {
     pub name: String,
     /// Its identity at the executive.
     pub id: u64,
-    client: FleetClient<Channel>,
+    client: Client,
     /// The cell it stands on.
     pub cell: Cell,
     heading: f64,
@@ -167,6 +186,10 @@ pub struct SimRobot {
     capabilities: Capabilities,
     bidding: Option<Bidding>,
     steps_since_bid: u64,
+    /// The mission is paused: hold.
+    paused: bool,
+    faults: Faults,
+    steps: u64,
 }
 
 /// How a robot bids (Simmons et al. 2000, §4.1), when its mission's policy wants bids.
@@ -183,10 +206,13 @@ fn retryable(status: &Status) -> bool {
 }
 
 impl SimRobot {
-    /// Connects to the executive and registers (or resumes) the robot.
+    /// Connects to the executive and registers (or resumes) the robot,
+    /// with the operator's token when the executive wants one; then talks
+    /// with the token its registration returned.
     #[allow(clippy::too_many_arguments)]
     pub async fn connect(
         endpoint: &str,
+        operator_token: Option<&str>,
         mission_id: u64,
         name: String,
         start: Cell,
@@ -203,7 +229,13 @@ impl SimRobot {
             .connect_timeout(Duration::from_secs(5))
             .tcp_nodelay(true)
             .connect_lazy();
-        let mut client = FleetClient::new(channel).max_decoding_message_size(64 << 20);
+        let bearer = |token: Option<&str>| {
+            Bearer::new(token).map_err(|e| RobotError::Rpc {
+                what: "connect",
+                status: Status::invalid_argument(format!("the token is not valid metadata: {e}")),
+            })
+        };
+        let registrar = FleetClient::with_interceptor(channel.clone(), bearer(operator_token)?);
         let frame = world.frame;
         let point = frame.world_from_cell(start);
         let request = pb::RegisterRobotRequest {
@@ -218,11 +250,13 @@ impl SimRobot {
             pose: Some(pb::Pose { x: point.x, y: point.y, theta: 0.0 }),
         };
         let response = retry("RegisterRobot", retry_budget, || {
-            let mut client = client.clone();
+            let mut client = registrar.clone();
             let request = request.clone();
             async move { client.register_robot(request).await }
         })
         .await?;
+        let mut client =
+            FleetClient::with_interceptor(channel, bearer(Some(&response.token))?).max_decoding_message_size(64 << 20);
         let robot = response.robot.ok_or_else(|| RobotError::Rpc {
             what: "RegisterRobot",
             status: Status::internal("the response holds no robot"),
@@ -267,13 +301,38 @@ impl SimRobot {
             },
             bidding,
             steps_since_bid: 0,
+            paused: false,
+            faults: Faults::default(),
+            steps: 0,
         })
+    }
+
+    /// Makes the robot misbehave as `faults` say.
+    pub fn inject(&mut self, faults: Faults) {
+        self.faults = faults;
+    }
+
+    /// The faults injected so far.
+    pub fn faults(&self) -> Faults {
+        self.faults
+    }
+
+    /// Whether it is dead (failure injection) at this step.
+    pub fn is_dead(&self) -> bool {
+        self.faults.dies_at.is_some_and(|s| self.steps >= s)
     }
 
     /// One time step: move (unless `blocked`: interference), sense, report,
     /// adopt the assignment.
     pub async fn step(&mut self, world: &World, team: &mut TeamMap, blocked: bool) -> Result<StepOutcome, RobotError> {
         let mut outcome = StepOutcome::default();
+        self.steps += 1;
+        if self.is_dead() {
+            outcome.dead = true;
+            return Ok(outcome);
+        }
+        let frozen = self.faults.freezes_at.is_some_and(|s| self.steps >= s);
+        let blocked = blocked || frozen || self.paused;
         // Move along the path, as many cells as the speed allows this step.
         self.stride += self.capabilities.speed_mps / REFERENCE_SPEED_MPS;
         while self.stride >= 1.0 {
@@ -300,7 +359,7 @@ impl SimRobot {
             }
         }
         // Arrived: say so; the answer carries the next assignment.
-        if let Some(task) = self.task.filter(|t| t.target == self.cell) {
+        if let Some(task) = self.task.filter(|t| t.target == self.cell && !t.hold) {
             let assignment = self.heartbeat(world, pb::RobotState::Arrived, task.id, "").await?;
             self.adopt(assignment, world, team).await?;
         }
@@ -308,6 +367,7 @@ impl SimRobot {
         let patch = self.patch();
         let assignment = self.send_update(world, patch).await?;
         let completed = assignment.mission_state == pb::MissionState::Completed as i32;
+        self.paused = assignment.mission_state == pb::MissionState::Paused as i32;
         self.adopt(assignment, world, team).await?;
         // Bidding robots (Simmons et al. 2000) bid on a fresh map now and
         // then, and whenever they have nothing to do.
@@ -553,7 +613,8 @@ impl SimRobot {
                 .as_ref()
                 .filter(|_| assignment.task_id != 0)
                 .and_then(|p| world.frame.cell_from_world(&exploration::math::Point2::new(p.x, p.y)));
-            let task = target.map(|target| Task { id: assignment.task_id, target });
+            let hold = assignment.kind == pb::TaskKind::Hold as i32;
+            let task = target.map(|target| Task { id: assignment.task_id, target, hold });
             if task == self.task {
                 return Ok(());
             }
@@ -562,6 +623,14 @@ impl SimRobot {
             let Some(task) = task else {
                 return Ok(());
             };
+            if task.hold {
+                return Ok(());
+            }
+            if self.faults.unreachable.is_some_and(|r| r.contains(task.target)) {
+                assignment =
+                    self.heartbeat(world, pb::RobotState::Failed, task.id, "injected: cannot get there").await?;
+                continue;
+            }
             let map = if self.limited { &self.own } else { &team.grid };
             let path = if self.capabilities.footprint_radius_m > 0.0 {
                 let traversal = TraversalMap::free_space(map, self.capabilities.footprint_radius_m);
@@ -607,7 +676,7 @@ impl SimRobot {
 /// Follows a robot's assignment stream, reconnecting through outages, and
 /// keeps the newest assignment in `tx`.
 async fn watch_assignments(
-    mut client: FleetClient<Channel>,
+    mut client: Client,
     robot_id: u64,
     tx: watch::Sender<Option<pb::Assignment>>,
     stop: CancellationToken,

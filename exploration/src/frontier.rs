@@ -224,6 +224,21 @@ impl FrontierCluster {
     pub fn is_empty(&self) -> bool {
         self.cells.is_empty()
     }
+
+    /// The cluster restricted to the cells `keep` accepts, its centroid and
+    /// representative recomputed; `None` when no cell is kept. The executive
+    /// takes out cells an operator forbade before a policy sees the frontier
+    /// (Simmons et al. 2000, §4.2: operators steer the exploration).
+    pub fn retain(&self, keep: impl Fn(Cell) -> bool) -> Option<Self> {
+        let cells: Vec<Cell> = self.cells.iter().copied().filter(|c| keep(*c)).collect();
+        if cells.len() == self.cells.len() {
+            Some(self.clone())
+        } else if cells.is_empty() {
+            None
+        } else {
+            Some(cluster_from_cells(cells))
+        }
+    }
 }
 
 /// Groups frontier cells into 8-connected clusters, dropping clusters of

@@ -16,11 +16,13 @@
 //! - [`assign`]: optimal assignment (the Hungarian problem) by shortest
 //!   augmenting paths.
 //! - [`policy`]: the coordination policies of the literature behind one interface.
+//! - [`completion`]: whether any robot can still explore the remaining frontier, and why not.
 //! - [`rng`]: the seeded SplitMix64 generator every random choice uses.
 //!
 //! The papers behind the policies are in the repository's `docs/papers.md`.
 
 pub mod assign;
+pub mod completion;
 pub mod cost;
 pub mod frontier;
 pub mod fusion;

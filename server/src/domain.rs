@@ -69,6 +69,24 @@ impl Default for ReplanSettings {
     }
 }
 
+/// How the executive watches a mission's robots.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LifecycleSettings {
+    /// A robot not heard from for this long loses its task.
+    pub lease: Duration,
+    /// A robot that gets no closer to its target for this long has the task
+    /// failed (explore_lite's `progress_timeout`, 30 s).
+    pub stall: Duration,
+    /// Where robots go when the mission completes; each its start pose when `None`.
+    pub rendezvous: Option<Point2>,
+}
+
+impl Default for LifecycleSettings {
+    fn default() -> Self {
+        Self { lease: Duration::from_secs(15), stall: Duration::from_secs(30), rendezvous: None }
+    }
+}
+
 /// What a mission is made of.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MissionSpec {
@@ -82,6 +100,8 @@ pub struct MissionSpec {
     pub replan: ReplanSettings,
     /// Each connected sub-team is coordinated apart (Burgard et al. 2005, §II-D).
     pub scoped_by_communication: bool,
+    /// Leases, stall detection, rendezvous.
+    pub lifecycle: LifecycleSettings,
 }
 
 /// Where a mission is in its life.
@@ -125,8 +145,130 @@ pub struct MissionRecord {
     pub replans: u64,
     /// Map updates applied so far.
     pub map_updates: u64,
+    /// Paused by an operator.
+    pub paused: bool,
+    /// The frontier left at completion, and why.
+    pub leftovers: Vec<Leftover>,
     /// When it was created.
     pub created_at: Timestamp,
+}
+
+/// Why part of the frontier was not explored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum LeftoverReason {
+    /// Smaller than the policy's minimum frontier size.
+    TooSmall,
+    /// Behind passages narrower than every robot's footprint.
+    TooNarrow,
+    /// Not connected to any robot through known free space.
+    Disconnected,
+    /// Blacklisted for every robot that could reach it.
+    Blacklisted,
+    /// Inside a forbidden region.
+    Forbidden,
+}
+
+impl LeftoverReason {
+    /// The name stored and shown.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::TooSmall => "too_small",
+            Self::TooNarrow => "too_narrow",
+            Self::Disconnected => "disconnected",
+            Self::Blacklisted => "blacklisted",
+            Self::Forbidden => "forbidden",
+        }
+    }
+
+    /// Parses a stored name.
+    pub fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "too_small" => Self::TooSmall,
+            "too_narrow" => Self::TooNarrow,
+            "disconnected" => Self::Disconnected,
+            "blacklisted" => Self::Blacklisted,
+            "forbidden" => Self::Forbidden,
+            _ => return None,
+        })
+    }
+}
+
+/// One frontier cluster left at completion.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Leftover {
+    /// Why it was left.
+    pub reason: LeftoverReason,
+    /// Its frontier cells.
+    pub cells: usize,
+    /// Its cell nearest to its centroid, in the world frame.
+    pub position: Point2,
+}
+
+/// A region where no target is assigned.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Region {
+    /// Its identity.
+    pub id: u64,
+    /// Its mission.
+    pub mission_id: MissionId,
+    /// Lower-left corner, world frame.
+    pub min: Point2,
+    /// Upper-right corner, world frame.
+    pub max: Point2,
+    /// Who forbade it.
+    pub actor: String,
+    /// Why.
+    pub reason: String,
+    /// When.
+    pub created_at: Timestamp,
+}
+
+impl Region {
+    /// Whether a point lies inside (edges included).
+    pub fn contains(&self, p: &Point2) -> bool {
+        p.x >= self.min.x && p.x <= self.max.x && p.y >= self.min.y && p.y <= self.max.y
+    }
+}
+
+/// A target a robot must not be sent to until the map around it changes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BlacklistEntry {
+    /// The robot.
+    pub robot_id: RobotId,
+    /// The target cell.
+    pub cell: exploration::grid::Cell,
+    /// Why ("reported unreachable: ...", "no progress for 30 s").
+    pub cause: String,
+    /// When.
+    pub created_at: Timestamp,
+}
+
+/// Who asks for an operator action, and why.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct OperatorNote {
+    /// The operator's name ("operator" when none was given).
+    pub actor: String,
+    /// The reason given.
+    pub reason: String,
+}
+
+/// What an operator asks of a robot (Simmons et al. 2000, §4.2).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Override {
+    /// Go to a point.
+    Goto(Point2),
+    /// Explore a region, nearest frontier first: (min, max) corners.
+    ExploreRegion(Point2, Point2),
+    /// Stay.
+    Hold,
+    /// Go to the start pose or the rendezvous.
+    Home,
+    /// Explore the frontier at a point.
+    PinFrontier(Point2),
+    /// End the robot's task, whatever it is.
+    Release,
+    /// End the robot's override.
+    Cancel,
 }
 
 /// What a robot reports it is doing.
@@ -204,6 +346,10 @@ pub struct RobotRecord {
     pub current_task: Option<TaskId>,
     /// When it was last heard from.
     pub last_seen: Timestamp,
+    /// Its lease ran out; it is out of the pool until it reports again.
+    pub lost: bool,
+    /// Where it registered.
+    pub home: Point2,
 }
 
 /// A map update as the executive applies it.
@@ -304,6 +450,46 @@ impl TaskState {
     }
 }
 
+/// What a task asks of its robot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum TaskKind {
+    /// A frontier the policy chose.
+    Explore,
+    /// A point an operator chose, or the next frontier of an operator's region.
+    Goto,
+    /// Stay.
+    Hold,
+    /// Go home.
+    Home,
+    /// A frontier an operator pinned to the robot.
+    Pin,
+}
+
+impl TaskKind {
+    /// The name stored and shown.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Explore => "explore",
+            Self::Goto => "goto",
+            Self::Hold => "hold",
+            Self::Home => "home",
+            Self::Pin => "pin",
+        }
+    }
+
+    /// Parses a stored name.
+    pub fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "explore" => Self::Explore,
+            "goto" => Self::Goto,
+            "hold" => Self::Hold,
+            "home" => Self::Home,
+            "pin" => Self::Pin,
+            _ => return None,
+        })
+    }
+}
+
 /// Who changed a task's state.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Actor {
@@ -357,6 +543,8 @@ pub struct Transition {
     pub cause: String,
     /// Who.
     pub actor: Actor,
+    /// The operator's name, for operator transitions; empty otherwise.
+    pub by: String,
 }
 
 /// A task as stored.
@@ -368,6 +556,8 @@ pub struct TaskRecord {
     pub mission_id: MissionId,
     /// The robot it was given to.
     pub robot_id: RobotId,
+    /// What it asks.
+    pub kind: TaskKind,
     /// Where to go.
     pub target: Point2,
     /// Where it is in its life.
@@ -378,14 +568,32 @@ pub struct TaskRecord {
     pub utility: f64,
     /// The policy's path cost.
     pub path_cost: f64,
-    /// The information-gain region expected at the target, if estimated.
+    /// The information-gain region expected at the target, if estimated;
+    /// the region to explore, for an operator's region.
     pub gain_region: Option<CellRect>,
+    /// "policy", "executive", or the operator's name.
+    pub created_by: String,
+    /// Why it was created, when someone said.
+    pub note: String,
     /// When it was created.
     pub created_at: Timestamp,
     /// When it last changed.
     pub updated_at: Timestamp,
     /// Every change, oldest first (may be empty when not loaded).
     pub transitions: Vec<Transition>,
+}
+
+/// `TaskRecord::created_by` of the tasks the policy chose.
+pub const BY_POLICY: &str = "policy";
+/// `TaskRecord::created_by` of the tasks the executive set itself (going home at the end).
+pub const BY_EXECUTIVE: &str = "executive";
+
+impl TaskRecord {
+    /// Whether an operator set it: its robot is out of the policy's pool
+    /// until it ends.
+    pub fn is_override(&self) -> bool {
+        self.created_by != BY_POLICY && self.created_by != BY_EXECUTIVE
+    }
 }
 
 /// Where a robot should go now.
@@ -401,6 +609,8 @@ pub struct Assignment {
     pub policy: &'static str,
     /// The mission's state.
     pub mission_state: MissionState,
+    /// The mission is paused: hold.
+    pub paused: bool,
 }
 
 /// The task part of an [`Assignment`].
@@ -408,6 +618,8 @@ pub struct Assignment {
 pub struct AssignedTask {
     /// The task.
     pub id: TaskId,
+    /// What to do.
+    pub kind: TaskKind,
     /// Where to go.
     pub target: Point2,
     /// The policy's figure of merit.

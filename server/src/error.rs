@@ -25,6 +25,12 @@ pub enum Error {
     /// A quota would be exceeded.
     #[error("{0}")]
     ResourceExhausted(String),
+    /// No valid token came with the request.
+    #[error("{0}")]
+    Unauthenticated(String),
+    /// The token does not allow this.
+    #[error("{0}")]
+    PermissionDenied(String),
     /// The executive is shutting down.
     #[error("the executive is shutting down; retry against its successor")]
     ShuttingDown,
@@ -57,6 +63,8 @@ impl From<Error> for tonic::Status {
             Error::AlreadyExists(m) => Status::already_exists(m),
             Error::FailedPrecondition(m) => Status::failed_precondition(m),
             Error::ResourceExhausted(m) => Status::resource_exhausted(m),
+            Error::Unauthenticated(m) => Status::unauthenticated(m),
+            Error::PermissionDenied(m) => Status::permission_denied(m),
             Error::ShuttingDown => Status::unavailable(e.to_string()),
             // Internals are logged here, once, and never shown to the client.
             Error::Store(cause) => {

@@ -23,12 +23,15 @@ use tokio_util::sync::CancellationToken;
 
 use exploration_proto::v1 as pb;
 
+pub mod auth;
+pub mod clock;
 pub mod domain;
 pub mod error;
 pub mod executive;
 pub mod service;
 pub mod store;
 
+pub use clock::{Clock, ManualClock};
 pub use executive::{Executive, ExecutiveSettings};
 pub use store::sqlite::{Durability, SqliteStore};
 
@@ -41,12 +44,19 @@ pub struct Config {
     pub durability: Durability,
     /// Limits and knobs.
     pub executive: ExecutiveSettings,
+    /// The operator token; without one the executive runs open (no token checked).
+    pub operator_token: Option<String>,
 }
 
 impl Config {
     /// Defaults for a database file.
     pub fn new(db_path: impl Into<PathBuf>) -> Self {
-        Self { db_path: db_path.into(), durability: Durability::default(), executive: ExecutiveSettings::default() }
+        Self {
+            db_path: db_path.into(),
+            durability: Durability::default(),
+            executive: ExecutiveSettings::default(),
+            operator_token: None,
+        }
     }
 }
 
@@ -67,6 +77,22 @@ pub enum ServeError {
     Transport(#[from] tonic::transport::Error),
 }
 
+/// Expires leases and detects stalls every [`executive::SWEEP_PERIOD`] until `stop`.
+async fn sweep_until(executive: Arc<Executive>, stop: CancellationToken) {
+    let mut ticks = tokio::time::interval(executive::SWEEP_PERIOD);
+    ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            () = stop.cancelled() => return,
+            _ = ticks.tick() => {
+                if let Err(e) = executive.sweep().await {
+                    tracing::error!(error = %e, "lease and stall sweep failed; retrying at the next tick");
+                }
+            }
+        }
+    }
+}
+
 /// Largest request the executive decodes (a map update with big patches).
 pub const MAX_MESSAGE_BYTES: usize = 64 * 1024 * 1024;
 
@@ -81,7 +107,15 @@ pub async fn run(
     let store = SqliteStore::open(&config.db_path, config.durability).await?;
     let executive = Arc::new(Executive::open(Arc::new(store.clone()), config.executive).await?);
     let streams_end = CancellationToken::new();
-    let service = service::ExplorationService::new(executive, streams_end.clone());
+    let auth = match config.operator_token.as_deref().map(str::trim).filter(|t| !t.is_empty()) {
+        Some(token) => auth::Authenticator::with_operator_token(token),
+        None => {
+            tracing::warn!("no operator token configured: every caller may administer missions (open mode)");
+            auth::Authenticator::open()
+        }
+    };
+    let sweeper = tokio::spawn(sweep_until(executive.clone(), streams_end.clone()));
+    let service = service::ExplorationService::new(executive, auth, streams_end.clone());
 
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<pb::missions_server::MissionsServer<service::ExplorationService>>().await;
@@ -100,6 +134,7 @@ pub async fn run(
     let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
     let drain = {
         let health = health.clone();
+        let streams_end = streams_end.clone();
         async move {
             shutdown.await;
             tracing::info!("shutting down: draining requests");
@@ -117,6 +152,10 @@ pub async fn run(
         .add_service(pb::fleet_server::FleetServer::new(service).max_decoding_message_size(MAX_MESSAGE_BYTES))
         .serve_with_incoming_shutdown(incoming, drain)
         .await?;
+    streams_end.cancel();
+    if let Err(e) = sweeper.await {
+        tracing::error!(error = %e, "lease sweeper failed");
+    }
     store.close().await;
     tracing::info!("executive stopped");
     Ok(())

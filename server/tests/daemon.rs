@@ -35,6 +35,7 @@ async fn sigterm_drains_streams_and_exits_cleanly() {
             policy: None,
             replan: None,
             scoped_by_communication: false,
+            ..Default::default()
         })
         .await
         .unwrap()

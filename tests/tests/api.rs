@@ -148,6 +148,7 @@ async fn bad_missions_and_robots_are_refused() {
         }),
         replan: None,
         scoped_by_communication: false,
+        ..Default::default()
     };
     let cases = [
         ("zero width", create(Some(common::frame(0, 10)), "burgard", &[]), "frame.width is 0"),
@@ -260,7 +261,7 @@ async fn an_update_is_applied_once_and_replans_push_assignments() {
         .unwrap();
     assert!(arrived.version > assignment.version);
     let tasks = missions
-        .list_tasks(pb::ListTasksRequest { mission_id: mission.id, robot_id: robot.id, limit: 0 })
+        .list_tasks(pb::ListTasksRequest { mission_id: mission.id, robot_id: robot.id, limit: 0, ..Default::default() })
         .await
         .unwrap()
         .into_inner()

@@ -86,3 +86,30 @@ async fn the_same_seed_gives_the_same_run() {
         (b.steps, b.t50, b.t90, b.t100, b.replans, &b.distance_per_robot, &b.trajectories)
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_fleet_finishes_without_a_robot_that_died_and_one_that_froze() {
+    use client_sim::fleet::{Fault, FaultKind};
+    let dir = tempfile::tempdir().unwrap();
+    let exec = TestExecutive::start(&dir.path().join("faults.db")).await;
+    let mut config = RunConfig::new(bundled_map("nav2_depot"), 3, "burgard");
+    config.server = Some(exec.url.clone());
+    config.cell_size = Some(0.2);
+    config.seed = 3;
+    // Real-time lease and stall of 1 s; 5 ms per step make sure the run
+    // lasts seconds past the faults whatever the machine's speed.
+    config.pace = Some(std::time::Duration::from_millis(5));
+    config.lease_s = Some(1.0);
+    config.stall_s = Some(1.0);
+    config.faults =
+        vec![Fault { robot: 1, kind: FaultKind::Dies(20) }, Fault { robot: 2, kind: FaultKind::Freezes(40) }];
+    let report = client_sim::run(&config).await.unwrap();
+    assert!(report.completed, "{report:?}");
+    assert_eq!(report.coverage, 1.0);
+    assert!(report.steps > 400, "long enough for the lease to run out: {report:?}");
+    let faults = report.fault_record.expect("a run with faults reports them");
+    assert_eq!(faults.lost_robots, vec!["robot-1".to_owned()], "{faults:?}");
+    assert!(faults.stalled_tasks >= 1, "the frozen robot's tasks fail for lack of progress: {faults:?}");
+    assert!(faults.tasks_by_state.get("released").copied().unwrap_or(0) >= 1, "{faults:?}");
+    exec.stop().await;
+}

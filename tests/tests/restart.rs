@@ -64,7 +64,7 @@ async fn a_restart_on_the_same_file_restores_map_robots_and_tasks() {
     let other = create_mission(&mut missions, 10, 10, "nearest").await;
     assert_eq!(other.id, mission.id + 1);
     let tasks = missions
-        .list_tasks(pb::ListTasksRequest { mission_id: mission.id, robot_id: 0, limit: 0 })
+        .list_tasks(pb::ListTasksRequest { mission_id: mission.id, robot_id: 0, limit: 0, ..Default::default() })
         .await
         .unwrap()
         .into_inner()

@@ -66,7 +66,8 @@ impl Burgard {
             .collect();
         robot_cost_maps(input, costs, &kinds)
             .iter()
-            .map(|map| frontier.iter().map(|&t| map.cost(t)).collect())
+            .zip(input.robots)
+            .map(|(map, robot)| frontier.iter().map(|&t| robot.cost_to(map, t)).collect())
             .collect()
     }
 

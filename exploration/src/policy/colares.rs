@@ -115,7 +115,7 @@ impl Policy for Colares {
         let inf = normalized(&inf);
         let maps = free_space_cost_maps(input, costs);
         let distances: Vec<Vec<Option<f64>>> =
-            maps.iter().map(|m| frontier.iter().map(|&c| m.cost(c)).collect()).collect();
+            maps.iter().zip(input.robots).map(|(m, r)| frontier.iter().map(|&c| r.cost_to(m, c)).collect()).collect();
         let farthest: Vec<f64> =
             distances.iter().map(|row| row.iter().flatten().copied().fold(0.0f64, f64::max)).collect();
         // Negative wavefronts: 1 at each robot, falling to 0 at its farthest frontier cell.
@@ -136,7 +136,9 @@ impl Policy for Colares {
             .map(|i| {
                 let robot = &input.robots[i];
                 let committed = robot.current.filter(|c| self.commit && c.target != robot.cell);
-                if let Some((current, cost)) = committed.and_then(|c| maps[i].cost(c.target).map(|cost| (c, cost))) {
+                if let Some((current, cost)) =
+                    committed.and_then(|c| robot.cost_to(&maps[i], c.target).map(|cost| (c, cost)))
+                {
                     return Some(Target { cell: current.target, utility: 0.0, path_cost: cost, gain_region: None });
                 }
                 let far = farthest[i];

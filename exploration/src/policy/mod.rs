@@ -72,6 +72,24 @@ pub struct RobotView {
     pub capabilities: Capabilities,
     /// What it is doing, if anything.
     pub current: Option<CurrentTask>,
+    /// Cells it must not be sent to: around targets blacklisted for it
+    /// (reported unreachable, or stalled on). They cost it ∞, as cells it
+    /// cannot reach do in Wurm et al. 2008, Eq. 4.
+    pub excluded: Vec<CellRect>,
+}
+
+impl RobotView {
+    /// Whether the robot may be sent to `cell` (not excluded for it).
+    pub fn may_target(&self, cell: Cell) -> bool {
+        !self.excluded.iter().any(|r| r.contains(cell))
+    }
+
+    /// The robot's path cost to `cell` on `map`, its own cost map: `None`
+    /// where it cannot go or must not be sent (Wurm et al. 2008, Eq. 4:
+    /// infinite cost).
+    pub fn cost_to(&self, map: &crate::cost::CostMap, cell: Cell) -> Option<f64> {
+        if self.may_target(cell) { map.cost(cell) } else { None }
+    }
 }
 
 /// Everything a policy may look at for one replanning.
@@ -147,28 +165,30 @@ pub struct ClusterCost {
     pub score: f64,
 }
 
-/// Per cluster, what reaching it costs on `map`; `None` for clusters the map
-/// cannot reach. A cluster holding `current`, the robot's current target,
+/// Per cluster, what reaching it costs `robot` on `map`, its cost map; `None`
+/// for clusters it cannot reach. A cluster holding its current target,
 /// keeps that target and scores `margin` less, so that the robot switches
 /// only for a frontier cheaper by more than the margin.
 pub fn cluster_costs(
     map: &crate::cost::CostMap,
     clusters: &[FrontierCluster],
-    current: Option<Cell>,
+    robot: &RobotView,
     margin: f64,
 ) -> Vec<Option<ClusterCost>> {
+    let current = current_target(robot);
     clusters
         .iter()
         .map(|cluster| {
-            let kept =
-                current.filter(|c| cluster.cells.contains(c)).and_then(|cell| map.cost(cell).map(|cost| (cell, cost)));
+            let kept = current
+                .filter(|c| cluster.cells.contains(c))
+                .and_then(|cell| robot.cost_to(map, cell).map(|cost| (cell, cost)));
             if let Some((cell, cost)) = kept {
                 return Some(ClusterCost { cell, cost, score: cost - margin });
             }
             cluster
                 .cells
                 .iter()
-                .filter_map(|&c| map.cost(c).map(|cost| (c, cost)))
+                .filter_map(|&c| robot.cost_to(map, c).map(|cost| (c, cost)))
                 .min_by(|a, b| a.1.total_cmp(&b.1))
                 .map(|(cell, cost)| ClusterCost { cell, cost, score: cost })
         })
@@ -198,7 +218,7 @@ pub fn cluster_cost_matrix(
         return free_space_cost_maps(input, costs)
             .iter()
             .zip(input.robots)
-            .map(|(m, r)| cluster_costs(m, input.clusters, current_target(r), margin))
+            .map(|(m, r)| cluster_costs(m, input.clusters, r, margin))
             .collect();
     }
     let traversal = costs.traversal(kinds[0]);
@@ -209,6 +229,11 @@ pub fn cluster_cost_matrix(
         .robots
         .iter()
         .map(|robot| {
+            if !robot.excluded.is_empty() {
+                // Exclusions are the robot's own: only its wavefront knows them.
+                let own = costs.cost_map(kinds[0], robot.cell);
+                return cluster_costs(&own, input.clusters, robot, margin);
+            }
             let current = current_target(robot);
             let row: Vec<Option<ClusterCost>> = input
                 .clusters
@@ -228,7 +253,7 @@ pub fn cluster_cost_matrix(
             if row.iter().all(Option::is_none) && !traversal.passable(robot.cell) {
                 // Inside an inflated obstacle: only its own wavefront gets out.
                 let own = costs.cost_map(kinds[0], robot.cell);
-                return cluster_costs(&own, input.clusters, current, margin);
+                return cluster_costs(&own, input.clusters, robot, margin);
             }
             row
         })
@@ -310,6 +335,7 @@ pub(crate) mod testing {
                 footprint_radius_m: 0.0,
             },
             current: None,
+            excluded: Vec::new(),
         }
     }
 
@@ -364,6 +390,38 @@ mod tests {
         unknown.insert("gamma".to_owned(), 1.0);
         let err = PolicyConfig::new("burgard", &unknown).unwrap_err();
         assert!(err.to_string().contains("beta"), "{err}");
+    }
+
+    /// A known corridor 40 cells long, 5 high, open to unknown space at both ends.
+    fn open_corridor() -> OccupancyGrid {
+        let frame = crate::grid::GridFrame::new(0.1, crate::math::Point2::origin(), 60, 7);
+        let mut grid = OccupancyGrid::unknown(frame);
+        for y in 0..7 {
+            for x in 10..50 {
+                grid.set(Cell::new(x, y), if y == 0 || y == 6 { 100 } else { 0 });
+            }
+        }
+        grid
+    }
+
+    #[test]
+    fn no_policy_sends_a_robot_where_it_is_excluded() {
+        let grid = open_corridor();
+        // Nearer the left end, which is excluded for it: every policy must
+        // send it to the right end instead (Wurm et al. 2008, Eq. 4).
+        let mut robot = testing::robot(1, Cell::new(20, 3), 1.0);
+        let left = CellRect::new(0, 0, 15, 7);
+        robot.excluded = vec![left];
+        for d in catalogue() {
+            let policy = PolicyConfig::default_for(d.name).unwrap().build();
+            let targets = testing::plan_targets(policy.as_ref(), &grid, std::slice::from_ref(&robot));
+            let target = targets[0].unwrap_or_else(|| panic!("{} gave no target", d.name));
+            assert!(!left.contains(target), "{} sent the robot to excluded {target:?}", d.name);
+        }
+        robot.excluded.clear();
+        let nearest = PolicyConfig::default_for("nearest").unwrap().build();
+        let target = testing::plan_targets(nearest.as_ref(), &grid, &[robot])[0].unwrap();
+        assert!(left.contains(target), "without the exclusion the left end is nearer: {target:?}");
     }
 
     #[test]

@@ -39,29 +39,32 @@ impl Policy for Nearest {
             .iter()
             .map(|robot| {
                 let nearest = match &shared {
-                    Some((labelled, _, _)) => labelled
+                    Some((labelled, _, _)) if robot.excluded.is_empty() => labelled
                         .source_of(robot.cell)
                         .and_then(|k| labelled.map().cost(robot.cell).map(|cost| (frontier[k], cost))),
-                    None => None,
+                    _ => None,
                 };
                 let nearest = nearest.or_else(|| {
                     let kind = TraversalKind::free_space(robot.capabilities.footprint_radius_m);
                     let map = costs.cost_map(kind, robot.cell);
                     frontier
                         .iter()
-                        .filter_map(|&cell| map.cost(cell).map(|cost| (cell, cost)))
+                        .filter_map(|&cell| robot.cost_to(&map, cell).map(|cost| (cell, cost)))
                         // Ties go to the first cell in row-major order: deterministic.
                         .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.y.cmp(&b.0.y)).then(a.0.x.cmp(&b.0.x)))
                 })?;
                 // Hysteresis: stay on the current target unless the nearest is
                 // closer by more than the margin.
-                let kept = current_target(robot).filter(|c| *c != nearest.0 && frontier.contains(c)).and_then(|c| {
-                    let traversal = costs.traversal(TraversalKind::free_space(robot.capabilities.footprint_radius_m));
-                    let path = shortest_path(traversal.frame(), robot.cell, c, |n| traversal.passable(n))?;
-                    let length: f64 =
-                        path.windows(2).map(|w| w[0].distance(w[1])).sum::<f64>() * traversal.frame().resolution;
-                    (length - self.switch_margin <= nearest.1).then_some((c, length))
-                });
+                let kept = current_target(robot)
+                    .filter(|c| *c != nearest.0 && frontier.contains(c) && robot.may_target(*c))
+                    .and_then(|c| {
+                        let traversal =
+                            costs.traversal(TraversalKind::free_space(robot.capabilities.footprint_radius_m));
+                        let path = shortest_path(traversal.frame(), robot.cell, c, |n| traversal.passable(n))?;
+                        let length: f64 =
+                            path.windows(2).map(|w| w[0].distance(w[1])).sum::<f64>() * traversal.frame().resolution;
+                        (length - self.switch_margin <= nearest.1).then_some((c, length))
+                    });
                 let (cell, cost) = kept.unwrap_or(nearest);
                 Some(Target { cell, utility: -cost, path_cost: cost, gain_region: None })
             })

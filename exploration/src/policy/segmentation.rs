@@ -94,7 +94,8 @@ impl Policy for SegmentationPolicy {
                 let target_segment = current.and_then(|c| segmentation.segment_of(c));
                 open.iter()
                     .map(|s| {
-                        let nearest = s.frontier.iter().filter_map(|&c| map.cost(c)).fold(f64::INFINITY, f64::min);
+                        let nearest =
+                            s.frontier.iter().filter_map(|&c| robot.cost_to(map, c)).fold(f64::INFINITY, f64::min);
                         let inside = if home == Some(s.id) { nearest * self.inside_discount } else { nearest };
                         if target_segment == Some(s.id) { inside - self.switch_margin } else { inside }
                     })
@@ -117,7 +118,7 @@ impl Policy for SegmentationPolicy {
                     s.frontier
                         .iter()
                         .map(|&c| {
-                            let cost = maps[i].cost(c).unwrap_or(f64::INFINITY);
+                            let cost = input.robots[i].cost_to(&maps[i], c).unwrap_or(f64::INFINITY);
                             if Some(c) == current { cost - self.switch_margin } else { cost }
                         })
                         .collect()
@@ -127,7 +128,7 @@ impl Policy for SegmentationPolicy {
             for (row, col) in within.iter().enumerate() {
                 let i = robots[row];
                 if let Some(c) = col {
-                    let cost = maps[i].cost(s.frontier[*c]).unwrap_or(f64::INFINITY);
+                    let cost = input.robots[i].cost_to(&maps[i], s.frontier[*c]).unwrap_or(f64::INFINITY);
                     targets[i] = Some(Target {
                         cell: s.frontier[*c],
                         utility: -segment_costs[i][k],

@@ -200,7 +200,7 @@ impl Policy for Simmons {
                     frontier
                         .iter()
                         .filter_map(|&target| {
-                            let cost = map.cost(target)?;
+                            let cost = robot.cost_to(map, target)?;
                             let (gain, region) = *gains
                                 .entry((target, range.to_bits()))
                                 .or_insert_with(|| gain_region(grid, target, range));
@@ -231,6 +231,9 @@ impl Policy for Simmons {
                 }
                 let current_region = input.robots[i].current.and_then(|c| c.gain_region);
                 for (b, bid) in robot_bids.iter().enumerate() {
+                    if !input.robots[i].may_target(bid.target) {
+                        continue;
+                    }
                     let mut gain = (1.0 - assigned.overlap(&bid.gain_region)) * bid.information_gain;
                     if current_region.is_some_and(|r| r.contains(bid.target)) {
                         gain /= self.hysteresis_ratio;

@@ -26,6 +26,11 @@ struct Args {
     /// Threads a replanning may use (default: all cores).
     #[arg(long, env = "COORDINATOR_PLANNER_THREADS")]
     planner_threads: Option<usize>,
+    /// The operator token: required for mission administration and
+    /// overrides; robots then need the tokens their registration returns.
+    /// Without it the executive runs open (every caller may do everything).
+    #[arg(long, env = "COORDINATOR_OPERATOR_TOKEN", hide_env_values = true)]
+    operator_token: Option<String>,
     /// Log format.
     #[arg(long, env = "COORDINATOR_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     log_format: LogFormat,
@@ -55,6 +60,7 @@ async fn main() -> anyhow::Result<()> {
         .await
         .with_context(|| format!("cannot listen on {}", args.listen))?;
     let mut config = Config::new(args.db);
+    config.operator_token = args.operator_token;
     config.durability = match args.durability {
         DurabilityArg::Full => Durability::Full,
         DurabilityArg::Normal => Durability::Normal,

@@ -15,9 +15,11 @@ use tokio::sync::{Mutex, watch};
 use exploration::grid::OccupancyGrid;
 use exploration::math::Point2;
 
+use crate::clock::Clock;
 use crate::domain::{
-    Assignment, Bid, Heartbeat, MapUpdate, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState, RobotId,
-    RobotRecord, RobotSpec, StoredSegmentation, TaskRecord, Timestamp,
+    Assignment, Bid, Heartbeat, MapUpdate, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState,
+    OperatorNote, Override, Region, RobotId, RobotRecord, RobotSpec, StoredSegmentation, TaskKind, TaskRecord,
+    Timestamp,
 };
 use crate::error::Error;
 use crate::store::{Changeset, Store, TaskFilter};
@@ -25,10 +27,10 @@ use exploration::policy::PolicyConfig;
 
 mod mission;
 
-use mission::Mission;
+use mission::{Mission, StoredMission};
 
 /// Limits and knobs of an executive.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct ExecutiveSettings {
     /// Threads a replanning may use for cost maps.
     pub planner_threads: usize,
@@ -38,6 +40,8 @@ pub struct ExecutiveSettings {
     pub max_robots_per_mission: usize,
     /// Most grid cells over all missions (memory bound).
     pub max_total_cells: u64,
+    /// What leases, stalls and replanning intervals are timed by.
+    pub clock: Clock,
 }
 
 impl Default for ExecutiveSettings {
@@ -47,9 +51,13 @@ impl Default for ExecutiveSettings {
             max_missions: 1_000,
             max_robots_per_mission: 1_000,
             max_total_cells: 400_000_000,
+            clock: Clock::default(),
         }
     }
 }
+
+/// How often leases and stalls are checked.
+pub const SWEEP_PERIOD: std::time::Duration = std::time::Duration::from_millis(500);
 
 /// A mission with its live counters.
 #[derive(Debug, Clone, PartialEq)]
@@ -62,6 +70,8 @@ pub struct MissionSummary {
     pub known_cells: u64,
     /// Frontier cells of the fused grid.
     pub frontier_cells: u64,
+    /// Its forbidden regions.
+    pub forbidden: Vec<Region>,
 }
 
 /// A robot with its current target.
@@ -71,6 +81,10 @@ pub struct RobotSummary {
     pub record: RobotRecord,
     /// Where its current task leads.
     pub target: Option<Point2>,
+    /// What its current task is.
+    pub task_kind: Option<TaskKind>,
+    /// Targets blacklisted for it.
+    pub blacklisted: usize,
 }
 
 /// What a map update led to.
@@ -105,7 +119,10 @@ pub struct Executive {
     missions: RwLock<BTreeMap<MissionId, Arc<Mutex<Mission>>>>,
     robot_missions: RwLock<HashMap<RobotId, MissionId>>,
     next_task_id: AtomicU64,
+    next_region_id: AtomicU64,
     total_cells: AtomicU64,
+    /// Each robot's token hash.
+    tokens: RwLock<HashMap<RobotId, String>>,
 }
 
 impl Executive {
@@ -114,11 +131,14 @@ impl Executive {
         let mut missions = BTreeMap::new();
         let mut robot_missions = HashMap::new();
         let mut total_cells = 0u64;
+        let now = settings.clock.now();
         for record in store.missions().await? {
             let id = record.id;
             let robots = store.robots(id).await?;
             let patches = store.patches(id).await?;
             let open_tasks = store.open_tasks(id).await?;
+            let blacklist = store.blacklist(id).await?;
+            let forbidden = store.forbidden_regions(id).await?;
             tracing::info!(
                 mission = id,
                 robots = robots.len(),
@@ -134,20 +154,25 @@ impl Executive {
                 bids.push((robot.id, store.bids(robot.id).await?));
             }
             total_cells += record.spec.frame.len() as u64;
-            let mut mission = Mission::restore(record, robots, patches, open_tasks)?;
+            let mut mission =
+                Mission::restore(record, StoredMission { robots, patches, open_tasks, blacklist, forbidden }, now)?;
             for (robot, robot_bids) in bids {
                 mission.set_bids(robot, &robot_bids);
             }
             missions.insert(id, Arc::new(Mutex::new(mission)));
         }
         let next_task_id = store.max_task_id().await?;
+        let next_region_id = store.max_region_id().await?;
+        let tokens = store.robot_tokens().await?.into_iter().collect();
         Ok(Self {
             store,
             settings,
             missions: RwLock::new(missions),
             robot_missions: RwLock::new(robot_missions),
             next_task_id: AtomicU64::new(next_task_id),
+            next_region_id: AtomicU64::new(next_region_id),
             total_cells: AtomicU64::new(total_cells),
+            tokens: RwLock::new(tokens),
         })
     }
 
@@ -176,7 +201,13 @@ impl Executive {
             robots: mission.robot_count(),
             known_cells: mission.known_cells(),
             frontier_cells: mission.frontier_cells() as u64,
+            forbidden: mission.forbidden().to_vec(),
         }
+    }
+
+    /// The stored hash of a robot's token, if it has one.
+    pub fn robot_token_hash(&self, robot: RobotId) -> Option<String> {
+        self.tokens.read().unwrap_or_else(|e| e.into_inner()).get(&robot).cloned()
     }
 
     /// Creates a mission.
@@ -200,7 +231,7 @@ impl Executive {
         }
         let record = self.store.create_mission(&spec, Timestamp::now()).await?;
         tracing::info!(mission = record.id, policy = record.spec.policy.name(), cells, "mission created");
-        let mission = Mission::new(record.clone());
+        let mission = Mission::new(record.clone(), self.settings.clock.now());
         let summary = Self::summary(&mission);
         self.total_cells.fetch_add(cells, Ordering::Relaxed);
         self.missions.write().unwrap_or_else(|e| e.into_inner()).insert(record.id, Arc::new(Mutex::new(mission)));
@@ -224,19 +255,36 @@ impl Executive {
         out
     }
 
-    /// Registers a robot, or resumes the robot of that name.
-    pub async fn register_robot(&self, mission_id: MissionId, spec: RobotSpec) -> Result<(RobotRecord, bool), Error> {
+    /// The robot of that name in a mission, if there is one.
+    pub async fn robot_named(&self, mission_id: MissionId, name: &str) -> Result<Option<RobotId>, Error> {
+        let handle = self.mission_handle(mission_id)?;
+        let mission = handle.lock().await;
+        Ok(mission.robot_by_name(name).map(|r| r.id))
+    }
+
+    /// Registers a robot, or resumes the robot of that name; returns it, a
+    /// new token for it, and whether it was resumed.
+    pub async fn register_robot(
+        &self,
+        mission_id: MissionId,
+        spec: RobotSpec,
+    ) -> Result<(RobotRecord, String, bool), Error> {
         let handle = self.mission_handle(mission_id)?;
         let mut mission = handle.lock().await;
         if let Some(existing) = mission.robot_by_name(&spec.name) {
             let mut resumed = existing.clone();
             resumed.capabilities = spec.capabilities;
             resumed.last_seen = Timestamp::now();
+            resumed.lost = false;
+            let (token, hash) = crate::auth::issue_robot_token(resumed.id)?;
+            self.store.set_robot_token(resumed.id, &hash).await?;
             let changes = Changeset { robots: vec![resumed.clone()], ..Changeset::default() };
             self.store.commit(&changes).await?;
+            self.tokens.write().unwrap_or_else(|e| e.into_inner()).insert(resumed.id, hash);
             mission.apply(changes);
+            mission.heard_from(resumed.id, self.settings.clock.now());
             tracing::info!(mission = mission_id, robot = resumed.id, name = %resumed.name, "robot resumed");
-            return Ok((resumed, true));
+            return Ok((resumed, token, true));
         }
         if mission.robot_count() >= self.settings.max_robots_per_mission {
             return Err(Error::ResourceExhausted(format!(
@@ -250,11 +298,16 @@ impl Executive {
                 spec.pose.position.x, spec.pose.position.y
             )));
         }
-        let record = self.store.create_robot(mission_id, &spec, Timestamp::now()).await?;
+        // The token names the robot, whose identity the store gives: the
+        // row starts without a hash and gets it before anyone can use it.
+        let record = self.store.create_robot(mission_id, &spec, "", Timestamp::now()).await?;
+        let (token, hash) = crate::auth::issue_robot_token(record.id)?;
+        self.store.set_robot_token(record.id, &hash).await?;
+        self.tokens.write().unwrap_or_else(|e| e.into_inner()).insert(record.id, hash);
         tracing::info!(mission = mission_id, robot = record.id, name = %record.name, "robot registered");
-        mission.insert_robot(record.clone());
+        mission.insert_robot(record.clone(), self.settings.clock.now());
         self.robot_missions.write().unwrap_or_else(|e| e.into_inner()).insert(record.id, mission_id);
-        Ok((record, false))
+        Ok((record, token, false))
     }
 
     /// Applies a robot's report, then replans if it asked for it.
@@ -265,6 +318,7 @@ impl Executive {
         let changes = mission.prepare_heartbeat(robot_id, heartbeat, Timestamp::now())?;
         self.store.commit(&changes).await?;
         mission.apply(changes);
+        mission.heard_from(robot_id, self.settings.clock.now());
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
         }
@@ -282,6 +336,7 @@ impl Executive {
         // Durable before it is applied or acknowledged.
         self.store.commit(&changes).await?;
         mission.apply(changes);
+        mission.heard_from(robot_id, self.settings.clock.now());
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
         }
@@ -301,6 +356,7 @@ impl Executive {
         mission.robot(robot_id)?;
         self.store.replace_bids(robot_id, &bids, Timestamp::now()).await?;
         mission.set_bids(robot_id, &bids);
+        mission.heard_from(robot_id, self.settings.clock.now());
         self.replan_if_due(&mut mission).await?;
         Ok((bids.len(), mission.assignment(robot_id)?))
     }
@@ -357,7 +413,15 @@ impl Executive {
     }
 
     fn robot_summaries(mission: &Mission) -> Vec<RobotSummary> {
-        mission.robots().map(|r| RobotSummary { record: r.clone(), target: mission.target_of(r) }).collect()
+        mission
+            .robots()
+            .map(|r| RobotSummary {
+                record: r.clone(),
+                target: mission.target_of(r),
+                task_kind: mission.task_kind_of(r),
+                blacklisted: mission.blacklisted(r.id),
+            })
+            .collect()
     }
 
     /// Tasks with their transitions, newest first.
@@ -384,9 +448,115 @@ impl Executive {
         })
     }
 
+    /// Overrides a robot's task for an operator (Simmons et al. 2000, §4.2);
+    /// the others are replanned to cover for it.
+    pub async fn override_robot(
+        &self,
+        robot_id: RobotId,
+        action: Override,
+        note: OperatorNote,
+    ) -> Result<RobotSummary, Error> {
+        let handle = self.mission_of_robot(robot_id)?;
+        let mut mission = handle.lock().await;
+        let changes = mission.prepare_override(robot_id, action, &note, Timestamp::now(), &self.next_task_id)?;
+        self.store.commit(&changes).await?;
+        mission.apply(changes);
+        tracing::info!(mission = mission.record().id, robot = robot_id, ?action, actor = %note.actor, "override");
+        self.replan_if_due(&mut mission).await?;
+        let record = mission.robot(robot_id)?;
+        Ok(RobotSummary {
+            record: record.clone(),
+            target: mission.target_of(record),
+            task_kind: mission.task_kind_of(record),
+            blacklisted: mission.blacklisted(robot_id),
+        })
+    }
+
+    /// Pauses (`pause`) or resumes a mission.
+    pub async fn pause_mission(
+        &self,
+        mission_id: MissionId,
+        pause: bool,
+        note: OperatorNote,
+    ) -> Result<MissionSummary, Error> {
+        let handle = self.mission_handle(mission_id)?;
+        let mut mission = handle.lock().await;
+        let changes = mission.prepare_pause(pause, &note, Timestamp::now())?;
+        self.store.commit(&changes).await?;
+        mission.apply(changes);
+        tracing::info!(mission = mission_id, pause, actor = %note.actor, "mission paused or resumed");
+        self.replan_if_due(&mut mission).await?;
+        Ok(Self::summary(&mission))
+    }
+
+    /// Forbids a region of a mission: no target is assigned inside.
+    pub async fn forbid_region(
+        &self,
+        mission_id: MissionId,
+        min: Point2,
+        max: Point2,
+        note: OperatorNote,
+    ) -> Result<Region, Error> {
+        let handle = self.mission_handle(mission_id)?;
+        let mut mission = handle.lock().await;
+        let id = self.next_region_id.load(Ordering::Relaxed) + 1;
+        let (changes, region) = mission.prepare_forbid(id, min, max, &note, Timestamp::now())?;
+        self.store.commit(&changes).await?;
+        self.next_region_id.store(id, Ordering::Relaxed);
+        mission.apply(changes);
+        tracing::info!(mission = mission_id, region = id, actor = %note.actor, "region forbidden");
+        self.replan_if_due(&mut mission).await?;
+        Ok(region)
+    }
+
+    /// Allows a forbidden region again.
+    pub async fn allow_region(
+        &self,
+        mission_id: MissionId,
+        region: u64,
+        note: OperatorNote,
+    ) -> Result<MissionSummary, Error> {
+        let handle = self.mission_handle(mission_id)?;
+        let mut mission = handle.lock().await;
+        let changes = mission.prepare_allow(region, &note, Timestamp::now())?;
+        self.store.commit(&changes).await?;
+        mission.apply(changes);
+        tracing::info!(mission = mission_id, region, actor = %note.actor, "region allowed");
+        self.replan_if_due(&mut mission).await?;
+        Ok(Self::summary(&mission))
+    }
+
+    /// A receiver that changes whenever an operator's view of the mission
+    /// does.
+    pub async fn subscribe(&self, mission_id: MissionId) -> Result<watch::Receiver<u64>, Error> {
+        let handle = self.mission_handle(mission_id)?;
+        let mission = handle.lock().await;
+        Ok(mission.subscribe())
+    }
+
+    /// Expires leases and detects stalls in every mission, then replans
+    /// those that changed. Runs every [`SWEEP_PERIOD`] while serving.
+    pub async fn sweep(&self) -> Result<(), Error> {
+        let handles: Vec<_> = self.missions.read().unwrap_or_else(|e| e.into_inner()).values().cloned().collect();
+        for handle in handles {
+            let mut mission = handle.lock().await;
+            let Some(changes) = mission.prepare_sweep(self.settings.clock.now(), Timestamp::now()) else {
+                continue;
+            };
+            self.store.commit(&changes).await?;
+            for change in &changes.task_changes {
+                tracing::info!(mission = mission.record().id, task = change.task_id, state = change.state.as_str(),
+                    cause = %change.transition.cause, "task ended by the executive");
+            }
+            mission.apply(changes);
+            self.replan_if_due(&mut mission).await?;
+        }
+        Ok(())
+    }
+
     /// Replans the mission if a trigger fired, and commits the outcome.
     async fn replan_if_due(&self, mission: &mut Mission) -> Result<(), Error> {
-        let now = tokio::time::Instant::now();
+        let now = self.settings.clock.now();
         let Some(reason) = mission.replan_reason(now) else {
             return Ok(());
         };

@@ -12,8 +12,9 @@ use exploration::policy::{Capabilities, PolicyConfig, catalogue};
 use exploration_proto::v1 as pb;
 
 use crate::domain::{
-    Actor, Assignment, Bid, Heartbeat, MapUpdate, MissionEvent, MissionSpec, MissionState, Pose, ReplanSettings,
-    RobotSpec, RobotState, StoredSegmentation, TaskRecord, TaskState, Timestamp, Transition,
+    Actor, Assignment, Bid, Heartbeat, Leftover, LeftoverReason, LifecycleSettings, MapUpdate, MissionEvent,
+    MissionSpec, MissionState, OperatorNote, Override, Pose, Region, ReplanSettings, RobotSpec, RobotState,
+    StoredSegmentation, TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
 use crate::error::Error;
 use crate::executive::{MissionSummary, RobotSummary};
@@ -152,17 +153,154 @@ impl From<&ReplanSettings> for pb::ReplanSettings {
     }
 }
 
+/// Lifecycle settings; zero fields take the defaults.
+pub fn lifecycle(settings: Option<pb::LifecycleSettings>, frame: &GridFrame) -> Result<LifecycleSettings, Error> {
+    let defaults = LifecycleSettings::default();
+    let Some(s) = settings else {
+        return Ok(defaults);
+    };
+    let seconds = |v: f64, d: Duration, field: &str| -> Result<Duration, Error> {
+        if v == 0.0 { Ok(d) } else { Ok(Duration::from_secs_f64(in_range(v, field, 0.1, 86_400.0, "seconds")?)) }
+    };
+    let rendezvous = match s.rendezvous {
+        Some(_) => {
+            let p = point(s.rendezvous, "lifecycle.rendezvous")?;
+            if frame.cell_from_world(&p).is_none() {
+                return Err(invalid(format!("lifecycle.rendezvous ({:.2}, {:.2}) lies outside the map", p.x, p.y)));
+            }
+            Some(p)
+        }
+        None => None,
+    };
+    Ok(LifecycleSettings {
+        lease: seconds(s.lease_s, defaults.lease, "lifecycle.lease_s")?,
+        stall: seconds(s.stall_s, defaults.stall, "lifecycle.stall_s")?,
+        rendezvous,
+    })
+}
+
+impl From<&LifecycleSettings> for pb::LifecycleSettings {
+    fn from(s: &LifecycleSettings) -> Self {
+        Self {
+            lease_s: s.lease.as_secs_f64(),
+            stall_s: s.stall.as_secs_f64(),
+            rendezvous: s.rendezvous.map(|p| pb::Point { x: p.x, y: p.y }),
+        }
+    }
+}
+
 impl TryFrom<pb::CreateMissionRequest> for MissionSpec {
     type Error = Error;
 
     fn try_from(r: pb::CreateMissionRequest) -> Result<Self, Error> {
+        let frame = frame(r.frame.ok_or_else(|| invalid("frame is required"))?)?;
         Ok(Self {
             name: name(r.name, "name")?,
-            frame: frame(r.frame.ok_or_else(|| invalid("frame is required"))?)?,
+            lifecycle: lifecycle(r.lifecycle, &frame)?,
+            frame,
             policy: policy(r.policy)?,
             replan: replan(r.replan)?,
             scoped_by_communication: r.scoped_by_communication,
         })
+    }
+}
+
+/// Who asks, and why: trimmed, bounded, "operator" when no name was given.
+pub fn operator_note(actor: String, reason: String) -> Result<OperatorNote, Error> {
+    let actor = actor.trim();
+    let actor = if actor.is_empty() { "operator".to_owned() } else { name(actor.to_owned(), "actor")? };
+    Ok(OperatorNote { actor, reason: reason.trim().chars().take(500).collect() })
+}
+
+/// A rectangle from its proto form: finite, min below max.
+pub fn area(r: Option<pb::Rect>, field: &str) -> Result<(Point2, Point2), Error> {
+    let r = r.ok_or_else(|| invalid(format!("{field} is required")))?;
+    let min = Point2::new(finite(r.min_x, &format!("{field}.min_x"))?, finite(r.min_y, &format!("{field}.min_y"))?);
+    let max = Point2::new(finite(r.max_x, &format!("{field}.max_x"))?, finite(r.max_y, &format!("{field}.max_y"))?);
+    if min.x >= max.x || min.y >= max.y {
+        return Err(invalid(format!(
+            "{field} runs from ({:.2}, {:.2}) to ({:.2}, {:.2}); min must lie below max on both axes",
+            min.x, min.y, max.x, max.y
+        )));
+    }
+    Ok((min, max))
+}
+
+impl TryFrom<Option<pb::override_robot_request::Action>> for OverrideInput {
+    type Error = Error;
+
+    fn try_from(action: Option<pb::override_robot_request::Action>) -> Result<Self, Error> {
+        use pb::override_robot_request::Action;
+        Ok(Self(match action {
+            None => {
+                return Err(invalid(
+                    "action is required: one of goto, explore_region, hold, home, pin_frontier, release, cancel",
+                ));
+            }
+            Some(Action::Goto(p)) => Override::Goto(point(Some(p), "goto")?),
+            Some(Action::ExploreRegion(r)) => {
+                let (min, max) = area(Some(r), "explore_region")?;
+                Override::ExploreRegion(min, max)
+            }
+            Some(Action::Hold(_)) => Override::Hold,
+            Some(Action::Home(_)) => Override::Home,
+            Some(Action::PinFrontier(p)) => Override::PinFrontier(point(Some(p), "pin_frontier")?),
+            Some(Action::Release(_)) => Override::Release,
+            Some(Action::Cancel(_)) => Override::Cancel,
+        }))
+    }
+}
+
+/// A validated override (a newtype so the conversion can live here).
+#[derive(Debug, Clone, Copy)]
+pub struct OverrideInput(pub Override);
+
+/// A task kind filter; unspecified means any.
+pub fn task_kind_filter(kind: i32) -> Result<Option<TaskKind>, Error> {
+    Ok(match pb::TaskKind::try_from(kind) {
+        Ok(pb::TaskKind::Unspecified) => None,
+        Ok(pb::TaskKind::Explore) => Some(TaskKind::Explore),
+        Ok(pb::TaskKind::Goto) => Some(TaskKind::Goto),
+        Ok(pb::TaskKind::Hold) => Some(TaskKind::Hold),
+        Ok(pb::TaskKind::Home) => Some(TaskKind::Home),
+        Ok(pb::TaskKind::Pin) => Some(TaskKind::Pin),
+        Err(_) => return Err(invalid(format!("kind {kind} is not a task kind"))),
+    })
+}
+
+fn task_kind(k: TaskKind) -> pb::TaskKind {
+    match k {
+        TaskKind::Explore => pb::TaskKind::Explore,
+        TaskKind::Goto => pb::TaskKind::Goto,
+        TaskKind::Hold => pb::TaskKind::Hold,
+        TaskKind::Home => pb::TaskKind::Home,
+        TaskKind::Pin => pb::TaskKind::Pin,
+    }
+}
+
+/// A forbidden region in proto form.
+pub fn region(r: &Region) -> pb::Region {
+    pb::Region {
+        id: r.id,
+        mission_id: r.mission_id,
+        area: Some(rect(r.min, r.max)),
+        actor: r.actor.clone(),
+        reason: r.reason.clone(),
+        created_at: Some(timestamp(r.created_at)),
+    }
+}
+
+fn leftover(l: &Leftover) -> pb::Leftover {
+    pb::Leftover {
+        reason: match l.reason {
+            LeftoverReason::TooSmall => pb::LeftoverReason::TooSmall,
+            LeftoverReason::TooNarrow => pb::LeftoverReason::TooNarrow,
+            LeftoverReason::Disconnected => pb::LeftoverReason::Disconnected,
+            LeftoverReason::Blacklisted => pb::LeftoverReason::Blacklisted,
+            LeftoverReason::Forbidden => pb::LeftoverReason::Forbidden,
+        } as i32,
+        cells: l.cells as u64,
+        position: Some(pb::Point { x: l.position.x, y: l.position.y }),
     }
 }
 
@@ -171,8 +309,9 @@ fn timestamp(t: Timestamp) -> prost_types::Timestamp {
     prost_types::Timestamp { seconds: millis.div_euclid(1000), nanos: (millis.rem_euclid(1000) * 1_000_000) as i32 }
 }
 
-fn mission_state(s: MissionState) -> pb::MissionState {
+fn mission_state(s: MissionState, paused: bool) -> pb::MissionState {
     match s {
+        _ if paused => pb::MissionState::Paused,
         MissionState::Active => pb::MissionState::Active,
         MissionState::Completed => pb::MissionState::Completed,
     }
@@ -187,7 +326,7 @@ impl From<&MissionSummary> for pb::Mission {
             frame: Some(frame_to_proto(&r.spec.frame)),
             policy: Some(policy_to_proto(&r.spec.policy)),
             replan: Some((&r.spec.replan).into()),
-            state: mission_state(r.state) as i32,
+            state: mission_state(r.state, r.paused) as i32,
             created_at: Some(timestamp(r.created_at)),
             robots: m.robots as u32,
             known_cells: m.known_cells,
@@ -195,6 +334,9 @@ impl From<&MissionSummary> for pb::Mission {
             replans: r.replans,
             map_updates: r.map_updates,
             scoped_by_communication: r.spec.scoped_by_communication,
+            lifecycle: Some((&r.spec.lifecycle).into()),
+            forbidden_regions: m.forbidden.iter().map(region).collect(),
+            leftovers: r.leftovers.iter().map(leftover).collect(),
         }
     }
 }
@@ -298,6 +440,10 @@ impl From<&RobotSummary> for pb::Robot {
             last_seen: Some(timestamp(r.last_seen)),
             distance_m: r.distance_m,
             target: s.target.map(|t| pb::Point { x: t.x, y: t.y }),
+            lost: r.lost,
+            task_kind: s.task_kind.map_or(pb::TaskKind::Unspecified, task_kind) as i32,
+            home: Some(pb::Point { x: r.home.x, y: r.home.y }),
+            blacklisted: s.blacklisted as u32,
         }
     }
 }
@@ -428,8 +574,9 @@ impl From<&Assignment> for pb::Assignment {
             policy: a.policy.to_owned(),
             utility: a.task.map_or(0.0, |t| t.utility),
             path_cost: a.task.map_or(0.0, |t| t.path_cost),
-            mission_state: mission_state(a.mission_state) as i32,
+            mission_state: mission_state(a.mission_state, a.paused) as i32,
             gain_region: a.task.and_then(|t| t.gain_region).map(|(low, high)| rect(low, high)),
+            kind: a.task.map_or(pb::TaskKind::Unspecified, |t| task_kind(t.kind)) as i32,
         }
     }
 }
@@ -519,6 +666,7 @@ impl From<&Transition> for pb::TaskTransition {
             at: Some(timestamp(t.at)),
             cause: t.cause.clone(),
             actor: actor(t.actor),
+            by: t.by.clone(),
         }
     }
 }
@@ -537,6 +685,9 @@ impl From<&TaskRecord> for pb::Task {
             created_at: Some(timestamp(t.created_at)),
             updated_at: Some(timestamp(t.updated_at)),
             transitions: t.transitions.iter().map(Into::into).collect(),
+            kind: task_kind(t.kind) as i32,
+            created_by: t.created_by.clone(),
+            note: t.note.clone(),
         }
     }
 }

@@ -1,6 +1,7 @@
-//! The gRPC handlers: thin adapters that convert a request into domain
-//! types ([`convert`]), call the [`Executive`], and convert the answer back.
-//! Errors become statuses in one place, `impl From<Error> for Status`.
+//! The gRPC handlers: thin adapters that check the caller's token
+//! ([`crate::auth`]), convert a request into domain types ([`convert`]),
+//! call the [`Executive`], and convert the answer back. Errors become
+//! statuses in one place, `impl From<Error> for Status`.
 
 use std::pin::Pin;
 use std::sync::Arc;
@@ -15,10 +16,14 @@ use exploration_proto::v1 as pb;
 use exploration_proto::v1::fleet_server::Fleet;
 use exploration_proto::v1::missions_server::Missions;
 
+use crate::auth::{Authenticator, Caller};
 use crate::domain::{Heartbeat, MapUpdate, MissionSpec, RobotSpec};
 use crate::error::Error;
 use crate::executive::{Executive, RobotSummary};
 use crate::store::TaskFilter;
+
+/// Most mission views a watcher gets per second.
+const WATCH_MIN_INTERVAL: std::time::Duration = std::time::Duration::from_millis(250);
 
 pub mod convert;
 
@@ -26,13 +31,36 @@ pub mod convert;
 #[derive(Debug, Clone)]
 pub struct ExplorationService {
     executive: Arc<Executive>,
+    auth: Arc<Authenticator>,
     shutdown: CancellationToken,
 }
 
 impl ExplorationService {
-    /// Serves `executive`; streams end when `shutdown` is cancelled.
-    pub fn new(executive: Arc<Executive>, shutdown: CancellationToken) -> Self {
-        Self { executive, shutdown }
+    /// Serves `executive` to the callers `auth` admits; streams end when
+    /// `shutdown` is cancelled.
+    pub fn new(executive: Arc<Executive>, auth: Authenticator, shutdown: CancellationToken) -> Self {
+        Self { executive, auth: Arc::new(auth), shutdown }
+    }
+
+    /// Who sent the request.
+    fn caller<T>(&self, request: &Request<T>) -> Result<Caller, Error> {
+        self.auth.caller(request.metadata(), |robot| self.executive.robot_token_hash(robot))
+    }
+
+    /// The request must come from an operator.
+    fn operator<T>(&self, request: &Request<T>, what: &str) -> Result<(), Error> {
+        self.caller(request)?.require_operator(what)
+    }
+
+    /// The request must come from `robot` itself or an operator.
+    fn as_robot<T>(&self, request: &Request<T>, robot: u64) -> Result<(), Error> {
+        self.caller(request)?.require_robot(robot)
+    }
+
+    async fn mission_view(&self, mission_id: u64) -> Result<pb::MissionView, Error> {
+        let mission = self.executive.mission(mission_id).await?;
+        let robots = self.executive.robots(mission_id).await?;
+        Ok(pb::MissionView { mission: Some((&mission).into()), robots: robots.iter().map(Into::into).collect() })
     }
 }
 
@@ -47,6 +75,7 @@ impl Missions for ExplorationService {
         &self,
         request: Request<pb::CreateMissionRequest>,
     ) -> Result<Response<pb::Mission>, Status> {
+        self.operator(&request, "creating a mission")?;
         let spec = MissionSpec::try_from(request.into_inner())?;
         let mission = self.executive.create_mission(spec).await?;
         Ok(Response::new((&mission).into()))
@@ -54,6 +83,7 @@ impl Missions for ExplorationService {
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
     async fn get_mission(&self, request: Request<pb::GetMissionRequest>) -> Result<Response<pb::Mission>, Status> {
+        self.caller(&request)?;
         let id = required_id(request.into_inner().mission_id, "mission_id")?;
         let mission = self.executive.mission(id).await?;
         Ok(Response::new((&mission).into()))
@@ -62,8 +92,9 @@ impl Missions for ExplorationService {
     #[tracing::instrument(skip_all)]
     async fn list_missions(
         &self,
-        _request: Request<pb::ListMissionsRequest>,
+        request: Request<pb::ListMissionsRequest>,
     ) -> Result<Response<pb::ListMissionsResponse>, Status> {
+        self.caller(&request)?;
         let missions = self.executive.missions().await;
         Ok(Response::new(pb::ListMissionsResponse { missions: missions.iter().map(Into::into).collect() }))
     }
@@ -71,8 +102,9 @@ impl Missions for ExplorationService {
     #[tracing::instrument(skip_all)]
     async fn list_policies(
         &self,
-        _request: Request<pb::ListPoliciesRequest>,
+        request: Request<pb::ListPoliciesRequest>,
     ) -> Result<Response<pb::ListPoliciesResponse>, Status> {
+        self.caller(&request)?;
         Ok(Response::new(convert::policies()))
     }
 
@@ -81,6 +113,7 @@ impl Missions for ExplorationService {
         &self,
         request: Request<pb::ListRobotsRequest>,
     ) -> Result<Response<pb::ListRobotsResponse>, Status> {
+        self.caller(&request)?;
         let id = required_id(request.into_inner().mission_id, "mission_id")?;
         let robots = self.executive.robots(id).await?;
         Ok(Response::new(pb::ListRobotsResponse { robots: robots.iter().map(Into::into).collect() }))
@@ -91,10 +124,13 @@ impl Missions for ExplorationService {
         &self,
         request: Request<pb::ListTasksRequest>,
     ) -> Result<Response<pb::ListTasksResponse>, Status> {
+        self.caller(&request)?;
         let r = request.into_inner();
         let filter = TaskFilter {
             mission_id: required_id(r.mission_id, "mission_id")?,
             robot_id: (r.robot_id != 0).then_some(r.robot_id),
+            kind: convert::task_kind_filter(r.kind)?,
+            open_only: r.open_only,
             limit: if r.limit == 0 { 1000 } else { r.limit.min(100_000) },
         };
         let tasks = self.executive.tasks(filter).await?;
@@ -103,6 +139,7 @@ impl Missions for ExplorationService {
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
     async fn get_map(&self, request: Request<pb::GetMapRequest>) -> Result<Response<pb::MapSnapshot>, Status> {
+        self.caller(&request)?;
         let id = required_id(request.into_inner().mission_id, "mission_id")?;
         let map = self.executive.map(id).await?;
         let frame = *map.grid.frame();
@@ -117,6 +154,7 @@ impl Missions for ExplorationService {
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
     async fn set_policy(&self, request: Request<pb::SetPolicyRequest>) -> Result<Response<pb::Mission>, Status> {
+        self.operator(&request, "changing a mission's policy")?;
         let r = request.into_inner();
         let id = required_id(r.mission_id, "mission_id")?;
         let policy =
@@ -131,6 +169,7 @@ impl Missions for ExplorationService {
         &self,
         request: Request<pb::ListEventsRequest>,
     ) -> Result<Response<pb::ListEventsResponse>, Status> {
+        self.caller(&request)?;
         let id = required_id(request.into_inner().mission_id, "mission_id")?;
         let events = self.executive.events(id).await?;
         Ok(Response::new(pb::ListEventsResponse { events: events.iter().map(convert::event).collect() }))
@@ -141,15 +180,101 @@ impl Missions for ExplorationService {
         &self,
         request: Request<pb::GetSegmentationRequest>,
     ) -> Result<Response<pb::Segmentation>, Status> {
+        self.caller(&request)?;
         let r = request.into_inner();
         let id = required_id(r.mission_id, "mission_id")?;
         let frame = self.executive.mission(id).await?.record.spec.frame;
         let stored = self.executive.segmentation(id).await?;
         Ok(Response::new(convert::segmentation(id, &frame, stored.as_ref(), r.include_labels)))
     }
+
+    type WatchMissionStream = MissionViewStream;
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
+    async fn watch_mission(
+        &self,
+        request: Request<pb::WatchMissionRequest>,
+    ) -> Result<Response<Self::WatchMissionStream>, Status> {
+        self.caller(&request)?;
+        let id = required_id(request.into_inner().mission_id, "mission_id")?;
+        let changes = self.executive.subscribe(id).await?;
+        let service = self.clone();
+        let shutdown = self.shutdown.clone().cancelled_owned();
+        // The current view at once, then one per change, at most every WATCH_MIN_INTERVAL.
+        let stream = futures::stream::unfold((changes, true), move |(mut changes, first)| {
+            let service = service.clone();
+            async move {
+                if !first {
+                    tokio::time::sleep(WATCH_MIN_INTERVAL).await;
+                    changes.changed().await.ok()?;
+                }
+                changes.borrow_and_update();
+                let view = service.mission_view(id).await.map_err(Status::from);
+                Some((view, (changes, false)))
+            }
+        })
+        .take_until(shutdown);
+        Ok(Response::new(Box::pin(stream)))
+    }
+
+    #[tracing::instrument(skip_all, fields(robot = request.get_ref().robot_id))]
+    async fn override_robot(&self, request: Request<pb::OverrideRobotRequest>) -> Result<Response<pb::Robot>, Status> {
+        self.operator(&request, "overriding a robot")?;
+        let r = request.into_inner();
+        let robot = required_id(r.robot_id, "robot_id")?;
+        let action = convert::OverrideInput::try_from(r.action)?.0;
+        let note = convert::operator_note(r.actor, r.reason)?;
+        let summary = self.executive.override_robot(robot, action, note).await?;
+        Ok(Response::new((&summary).into()))
+    }
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
+    async fn pause_mission(
+        &self,
+        request: Request<pb::MissionControlRequest>,
+    ) -> Result<Response<pb::Mission>, Status> {
+        self.operator(&request, "pausing a mission")?;
+        let r = request.into_inner();
+        let id = required_id(r.mission_id, "mission_id")?;
+        let mission = self.executive.pause_mission(id, true, convert::operator_note(r.actor, r.reason)?).await?;
+        Ok(Response::new((&mission).into()))
+    }
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
+    async fn resume_mission(
+        &self,
+        request: Request<pb::MissionControlRequest>,
+    ) -> Result<Response<pb::Mission>, Status> {
+        self.operator(&request, "resuming a mission")?;
+        let r = request.into_inner();
+        let id = required_id(r.mission_id, "mission_id")?;
+        let mission = self.executive.pause_mission(id, false, convert::operator_note(r.actor, r.reason)?).await?;
+        Ok(Response::new((&mission).into()))
+    }
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
+    async fn forbid_region(&self, request: Request<pb::ForbidRegionRequest>) -> Result<Response<pb::Region>, Status> {
+        self.operator(&request, "forbidding a region")?;
+        let r = request.into_inner();
+        let id = required_id(r.mission_id, "mission_id")?;
+        let (min, max) = convert::area(r.area, "area")?;
+        let region = self.executive.forbid_region(id, min, max, convert::operator_note(r.actor, r.reason)?).await?;
+        Ok(Response::new(convert::region(&region)))
+    }
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id, region = request.get_ref().region_id))]
+    async fn allow_region(&self, request: Request<pb::AllowRegionRequest>) -> Result<Response<pb::Mission>, Status> {
+        self.operator(&request, "allowing a region")?;
+        let r = request.into_inner();
+        let id = required_id(r.mission_id, "mission_id")?;
+        let region = required_id(r.region_id, "region_id")?;
+        let mission = self.executive.allow_region(id, region, convert::operator_note(r.actor, r.reason)?).await?;
+        Ok(Response::new((&mission).into()))
+    }
 }
 
 type AssignmentStream = Pin<Box<dyn Stream<Item = Result<pb::Assignment, Status>> + Send>>;
+type MissionViewStream = Pin<Box<dyn Stream<Item = Result<pb::MissionView, Status>> + Send>>;
 
 #[tonic::async_trait]
 impl Fleet for ExplorationService {
@@ -158,12 +283,23 @@ impl Fleet for ExplorationService {
         &self,
         request: Request<pb::RegisterRobotRequest>,
     ) -> Result<Response<pb::RegisterRobotResponse>, Status> {
+        let caller = self.caller(&request)?;
         let r = request.into_inner();
         let mission_id = required_id(r.mission_id, "mission_id")?;
+        if let Caller::Robot(id) = caller {
+            // A robot may re-register itself (after a restart), nothing else.
+            if self.executive.robot_named(mission_id, r.name.trim()).await? != Some(id) {
+                return Err(Error::PermissionDenied(format!(
+                    "the token of robot {id} may only re-register robot {id}; registering new robots needs the \
+                     operator token"
+                ))
+                .into());
+            }
+        }
         let spec = RobotSpec::try_from(r)?;
-        let (record, resumed) = self.executive.register_robot(mission_id, spec).await?;
-        let summary = RobotSummary { record, target: None };
-        Ok(Response::new(pb::RegisterRobotResponse { robot: Some((&summary).into()), resumed }))
+        let (record, token, resumed) = self.executive.register_robot(mission_id, spec).await?;
+        let summary = RobotSummary { record, target: None, task_kind: None, blacklisted: 0 };
+        Ok(Response::new(pb::RegisterRobotResponse { robot: Some((&summary).into()), resumed, token }))
     }
 
     #[tracing::instrument(skip_all, fields(robot = request.get_ref().robot_id, state = request.get_ref().state))]
@@ -171,9 +307,9 @@ impl Fleet for ExplorationService {
         &self,
         request: Request<pb::HeartbeatRequest>,
     ) -> Result<Response<pb::HeartbeatResponse>, Status> {
-        let r = request.into_inner();
-        let robot = required_id(r.robot_id, "robot_id")?;
-        let heartbeat = Heartbeat::try_from(r)?;
+        let robot = required_id(request.get_ref().robot_id, "robot_id")?;
+        self.as_robot(&request, robot)?;
+        let heartbeat = Heartbeat::try_from(request.into_inner())?;
         let assignment = self.executive.heartbeat(robot, heartbeat).await?;
         Ok(Response::new(pb::HeartbeatResponse { assignment: Some((&assignment).into()) }))
     }
@@ -183,9 +319,9 @@ impl Fleet for ExplorationService {
         &self,
         request: Request<pb::UpdateMapRequest>,
     ) -> Result<Response<pb::UpdateMapResponse>, Status> {
-        let r = request.into_inner();
-        let robot = required_id(r.robot_id, "robot_id")?;
-        let update = MapUpdate::try_from(r)?;
+        let robot = required_id(request.get_ref().robot_id, "robot_id")?;
+        self.as_robot(&request, robot)?;
+        let update = MapUpdate::try_from(request.into_inner())?;
         let outcome = self.executive.update_map(robot, update).await?;
         Ok(Response::new(pb::UpdateMapResponse {
             applied_seq: outcome.applied_seq,
@@ -200,9 +336,9 @@ impl Fleet for ExplorationService {
         &self,
         request: Request<pb::SubmitBidsRequest>,
     ) -> Result<Response<pb::SubmitBidsResponse>, Status> {
-        let r = request.into_inner();
-        let robot = required_id(r.robot_id, "robot_id")?;
-        let bids = convert::bids(r.bids)?;
+        let robot = required_id(request.get_ref().robot_id, "robot_id")?;
+        self.as_robot(&request, robot)?;
+        let bids = convert::bids(request.into_inner().bids)?;
         let (accepted, assignment) = self.executive.submit_bids(robot, bids).await?;
         Ok(Response::new(pb::SubmitBidsResponse { accepted: accepted as u32, assignment: Some((&assignment).into()) }))
     }
@@ -212,7 +348,8 @@ impl Fleet for ExplorationService {
         &self,
         request: Request<pb::GetAssignmentRequest>,
     ) -> Result<Response<pb::Assignment>, Status> {
-        let robot = required_id(request.into_inner().robot_id, "robot_id")?;
+        let robot = required_id(request.get_ref().robot_id, "robot_id")?;
+        self.as_robot(&request, robot)?;
         let assignment = self.executive.assignment(robot).await?;
         Ok(Response::new((&assignment).into()))
     }
@@ -224,7 +361,8 @@ impl Fleet for ExplorationService {
         &self,
         request: Request<pb::WatchAssignmentRequest>,
     ) -> Result<Response<Self::WatchAssignmentStream>, Status> {
-        let robot = required_id(request.into_inner().robot_id, "robot_id")?;
+        let robot = required_id(request.get_ref().robot_id, "robot_id")?;
+        self.as_robot(&request, robot)?;
         let receiver = self.executive.watch(robot).await?;
         let shutdown = self.shutdown.clone().cancelled_owned();
         // The stream yields the current assignment, then each change, and ends

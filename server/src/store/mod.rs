@@ -8,10 +8,11 @@
 use async_trait::async_trait;
 
 use crate::domain::{
-    Bid, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState, RobotId, RobotRecord, RobotSpec,
-    StoredSegmentation, TaskId, TaskRecord, TaskState, Timestamp, Transition,
+    Bid, BlacklistEntry, Leftover, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState, Region, RobotId,
+    RobotRecord, RobotSpec, StoredSegmentation, TaskId, TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
 use exploration::fusion::Patch;
+use exploration::grid::Cell;
 use exploration::policy::PolicyConfig;
 
 pub mod sqlite;
@@ -33,7 +34,7 @@ pub enum StoreError {
 }
 
 /// A mission's counters and state, as the executive last set them.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct MissionCounters {
     /// The mission.
     pub id: MissionId,
@@ -43,6 +44,10 @@ pub struct MissionCounters {
     pub replans: u64,
     /// Map updates applied so far.
     pub map_updates: u64,
+    /// Paused by an operator.
+    pub paused: bool,
+    /// The frontier left at completion.
+    pub leftovers: Vec<Leftover>,
 }
 
 /// A task's change of state.
@@ -86,6 +91,14 @@ pub struct Changeset {
     pub events: Vec<MissionEvent>,
     /// The mission's new segmentation.
     pub segmentation: Option<(MissionId, StoredSegmentation)>,
+    /// Targets blacklisted for robots.
+    pub blacklisted: Vec<BlacklistEntry>,
+    /// Blacklist entries that expired: (robot, cell).
+    pub unblacklisted: Vec<(RobotId, Cell)>,
+    /// Regions forbidden.
+    pub forbidden: Vec<Region>,
+    /// Forbidden regions allowed again (at the changeset's time).
+    pub allowed: Vec<u64>,
     /// When.
     pub at: Option<Timestamp>,
 }
@@ -101,6 +114,10 @@ impl Changeset {
             && self.policy.is_none()
             && self.events.is_empty()
             && self.segmentation.is_none()
+            && self.blacklisted.is_empty()
+            && self.unblacklisted.is_empty()
+            && self.forbidden.is_empty()
+            && self.allowed.is_empty()
     }
 }
 
@@ -111,8 +128,19 @@ pub struct TaskFilter {
     pub mission_id: MissionId,
     /// Only this robot's, when set.
     pub robot_id: Option<RobotId>,
+    /// Only this kind, when set.
+    pub kind: Option<TaskKind>,
+    /// Only tasks that have not ended.
+    pub open_only: bool,
     /// At most this many, newest first.
     pub limit: u32,
+}
+
+impl TaskFilter {
+    /// A mission's latest `limit` tasks.
+    pub fn mission(mission_id: MissionId, limit: u32) -> Self {
+        Self { mission_id, robot_id: None, kind: None, open_only: false, limit }
+    }
 }
 
 /// The executive's persistence.
@@ -124,13 +152,29 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// Every mission, oldest first.
     async fn missions(&self) -> Result<Vec<MissionRecord>, StoreError>;
 
-    /// Registers a robot and returns it with its new identity.
+    /// Registers a robot with the hash of its token and returns it with its new identity.
     async fn create_robot(
         &self,
         mission_id: MissionId,
         spec: &RobotSpec,
+        token_sha256: &str,
         now: Timestamp,
     ) -> Result<RobotRecord, StoreError>;
+
+    /// Replaces the hash of a robot's token.
+    async fn set_robot_token(&self, robot_id: RobotId, token_sha256: &str) -> Result<(), StoreError>;
+
+    /// Every robot's token hash (robots registered before tokens have none).
+    async fn robot_tokens(&self) -> Result<Vec<(RobotId, String)>, StoreError>;
+
+    /// A mission's blacklisted targets.
+    async fn blacklist(&self, mission_id: MissionId) -> Result<Vec<BlacklistEntry>, StoreError>;
+
+    /// A mission's forbidden regions that are still forbidden, oldest first.
+    async fn forbidden_regions(&self, mission_id: MissionId) -> Result<Vec<Region>, StoreError>;
+
+    /// The highest region identity ever given (0 when none).
+    async fn max_region_id(&self) -> Result<u64, StoreError>;
 
     /// A mission's robots, in registration order.
     async fn robots(&self, mission_id: MissionId) -> Result<Vec<RobotRecord>, StoreError>;

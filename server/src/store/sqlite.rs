@@ -13,8 +13,9 @@ use sqlx::{Row, Sqlite, Transaction};
 
 use super::{Changeset, LoggedPatch, Store, StoreError, TaskFilter};
 use crate::domain::{
-    Actor, Bid, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState, Pose, ReplanSettings, RobotId,
-    RobotRecord, RobotSpec, RobotState, StoredSegmentation, TaskId, TaskRecord, TaskState, Timestamp, Transition,
+    Actor, Bid, BlacklistEntry, Leftover, LeftoverReason, LifecycleSettings, MissionEvent, MissionId, MissionRecord,
+    MissionSpec, MissionState, Pose, Region, ReplanSettings, RobotId, RobotRecord, RobotSpec, RobotState,
+    StoredSegmentation, TaskId, TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
 use exploration::fusion::Patch;
 use exploration::grid::Cell;
@@ -70,6 +71,39 @@ fn corrupt(what: impl Into<String>) -> StoreError {
     StoreError::Corrupt(what.into())
 }
 
+fn leftovers_json(leftovers: &[Leftover]) -> String {
+    let items: Vec<serde_json::Value> = leftovers
+        .iter()
+        .map(|l| {
+            serde_json::json!({
+                "reason": l.reason.as_str(), "cells": l.cells, "x": l.position.x, "y": l.position.y,
+            })
+        })
+        .collect();
+    serde_json::Value::Array(items).to_string()
+}
+
+fn leftovers_from_json(id: i64, json: &str) -> Result<Vec<Leftover>, StoreError> {
+    let bad = |what: &str| corrupt(format!("mission {id}: leftovers: {what}"));
+    let value: serde_json::Value = serde_json::from_str(json).map_err(|e| bad(&e.to_string()))?;
+    value
+        .as_array()
+        .ok_or_else(|| bad("not an array"))?
+        .iter()
+        .map(|l| {
+            let reason = l["reason"].as_str().and_then(LeftoverReason::parse).ok_or_else(|| bad("reason"))?;
+            Ok(Leftover {
+                reason,
+                cells: l["cells"].as_u64().ok_or_else(|| bad("cells"))? as usize,
+                position: Point2::new(
+                    l["x"].as_f64().ok_or_else(|| bad("x"))?,
+                    l["y"].as_f64().ok_or_else(|| bad("y"))?,
+                ),
+            })
+        })
+        .collect()
+}
+
 fn mission_from_row(row: &SqliteRow) -> Result<MissionRecord, StoreError> {
     let id: i64 = row.try_get("id")?;
     let policy: String = row.try_get("policy")?;
@@ -95,10 +129,23 @@ fn mission_from_row(row: &SqliteRow) -> Result<MissionRecord, StoreError> {
                 frontier_change: row.try_get("replan_frontier_change")?,
             },
             scoped_by_communication: row.try_get::<i64, _>("scoped_by_communication")? != 0,
+            lifecycle: LifecycleSettings {
+                lease: Duration::from_secs_f64(row.try_get("lease_s")?),
+                stall: Duration::from_secs_f64(row.try_get("stall_s")?),
+                rendezvous: match (
+                    row.try_get::<Option<f64>, _>("rendezvous_x")?,
+                    row.try_get::<Option<f64>, _>("rendezvous_y")?,
+                ) {
+                    (Some(x), Some(y)) => Some(Point2::new(x, y)),
+                    _ => None,
+                },
+            },
         },
         state: MissionState::parse(&state).ok_or_else(|| corrupt(format!("mission {id}: state {state:?}")))?,
         replans: row.try_get::<i64, _>("replans")? as u64,
         map_updates: row.try_get::<i64, _>("map_updates")? as u64,
+        paused: row.try_get::<i64, _>("paused")? != 0,
+        leftovers: leftovers_from_json(id, &row.try_get::<String, _>("leftovers")?)?,
         created_at: Timestamp(row.try_get("created_at")?),
     })
 }
@@ -127,16 +174,20 @@ fn robot_from_row(row: &SqliteRow) -> Result<RobotRecord, StoreError> {
         assigned_distance_m: row.try_get("assigned_distance_m")?,
         current_task: row.try_get::<Option<i64>, _>("current_task_id")?.map(|t| t as TaskId),
         last_seen: Timestamp(row.try_get("last_seen")?),
+        lost: row.try_get::<i64, _>("lost")? != 0,
+        home: Point2::new(row.try_get("home_x")?, row.try_get("home_y")?),
     })
 }
 
 fn task_from_row(row: &SqliteRow) -> Result<TaskRecord, StoreError> {
     let id: i64 = row.try_get("id")?;
     let state: String = row.try_get("state")?;
+    let kind: String = row.try_get("kind")?;
     Ok(TaskRecord {
         id: id as TaskId,
         mission_id: row.try_get::<i64, _>("mission_id")? as MissionId,
         robot_id: row.try_get::<i64, _>("robot_id")? as RobotId,
+        kind: TaskKind::parse(&kind).ok_or_else(|| corrupt(format!("task {id}: kind {kind:?}")))?,
         target: Point2::new(row.try_get("target_x")?, row.try_get("target_y")?),
         state: TaskState::parse(&state).ok_or_else(|| corrupt(format!("task {id}: state {state:?}")))?,
         policy: row.try_get("policy")?,
@@ -151,6 +202,8 @@ fn task_from_row(row: &SqliteRow) -> Result<TaskRecord, StoreError> {
             (Some(x), Some(y), Some(w), Some(h)) => Some(CellRect::new(x as i32, y as i32, w as u32, h as u32)),
             _ => None,
         },
+        created_by: row.try_get("created_by")?,
+        note: row.try_get("note")?,
         created_at: Timestamp(row.try_get("created_at")?),
         updated_at: Timestamp(row.try_get("updated_at")?),
         transitions: Vec::new(),
@@ -264,6 +317,7 @@ fn transition_from_row(row: &SqliteRow) -> Result<Transition, StoreError> {
         at: Timestamp(row.try_get("at")?),
         cause: row.try_get("cause")?,
         actor: Actor::parse(&actor).ok_or_else(|| corrupt(format!("transition actor {actor:?}")))?,
+        by: row.try_get("by_name")?,
     })
 }
 
@@ -280,8 +334,9 @@ async fn write_robot(tx: &mut Transaction<'_, Sqlite>, robot: &RobotRecord) -> R
     sqlx::query(
         "UPDATE robots SET sensor_range_m = ?1, field_of_view_rad = ?2, speed_mps = ?3, footprint_radius_m = ?4,
                 state = ?5, pose_x = ?6, pose_y = ?7, pose_theta = ?8, last_map_seq = ?9, distance_m = ?10,
-                assignment_version = ?11, assigned_distance_m = ?12, current_task_id = ?13, last_seen = ?14
-         WHERE id = ?15",
+                assignment_version = ?11, assigned_distance_m = ?12, current_task_id = ?13, last_seen = ?14,
+                lost = ?15
+         WHERE id = ?16",
     )
     .bind(robot.capabilities.sensor_range_m)
     .bind(robot.capabilities.field_of_view_rad)
@@ -297,6 +352,7 @@ async fn write_robot(tx: &mut Transaction<'_, Sqlite>, robot: &RobotRecord) -> R
     .bind(robot.assigned_distance_m)
     .bind(robot.current_task.map(|t| t as i64))
     .bind(robot.last_seen.millis())
+    .bind(i64::from(robot.lost))
     .bind(robot.id as i64)
     .execute(&mut **tx)
     .await?;
@@ -305,7 +361,8 @@ async fn write_robot(tx: &mut Transaction<'_, Sqlite>, robot: &RobotRecord) -> R
 
 async fn write_transition(tx: &mut Transaction<'_, Sqlite>, task_id: TaskId, t: &Transition) -> Result<(), StoreError> {
     sqlx::query(
-        "INSERT INTO task_transitions (task_id, from_state, to_state, cause, actor, at) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+        "INSERT INTO task_transitions (task_id, from_state, to_state, cause, actor, at, by_name)
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
     )
     .bind(task_id as i64)
     .bind(t.from.map(TaskState::as_str))
@@ -313,6 +370,7 @@ async fn write_transition(tx: &mut Transaction<'_, Sqlite>, task_id: TaskId, t: 
     .bind(&t.cause)
     .bind(t.actor.as_str())
     .bind(t.at.millis())
+    .bind(&t.by)
     .execute(&mut **tx)
     .await?;
     Ok(())
@@ -326,8 +384,9 @@ impl Store for SqliteStore {
         let row = sqlx::query(
             "INSERT INTO missions (name, resolution, origin_x, origin_y, width, height, policy, policy_params,
                                    replan_distance_m, replan_interval_s, replan_frontier_change, state,
-                                   created_at, updated_at, scoped_by_communication)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, 'active', ?12, ?12, ?13)
+                                   created_at, updated_at, scoped_by_communication, lease_s, stall_s,
+                                   rendezvous_x, rendezvous_y)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, 'active', ?12, ?12, ?13, ?14, ?15, ?16, ?17)
              RETURNING *",
         )
         .bind(&spec.name)
@@ -343,6 +402,10 @@ impl Store for SqliteStore {
         .bind(spec.replan.frontier_change)
         .bind(now.millis())
         .bind(i64::from(spec.scoped_by_communication))
+        .bind(spec.lifecycle.lease.as_secs_f64())
+        .bind(spec.lifecycle.stall.as_secs_f64())
+        .bind(spec.lifecycle.rendezvous.map(|p| p.x))
+        .bind(spec.lifecycle.rendezvous.map(|p| p.y))
         .fetch_one(&self.pool)
         .await?;
         mission_from_row(&row)
@@ -361,12 +424,14 @@ impl Store for SqliteStore {
         &self,
         mission_id: MissionId,
         spec: &RobotSpec,
+        token_sha256: &str,
         now: Timestamp,
     ) -> Result<RobotRecord, StoreError> {
         let row = sqlx::query(
             "INSERT INTO robots (mission_id, name, sensor_range_m, field_of_view_rad, speed_mps, footprint_radius_m,
-                                 state, pose_x, pose_y, pose_theta, last_seen, created_at)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, 'idle', ?7, ?8, ?9, ?10, ?10)
+                                 state, pose_x, pose_y, pose_theta, last_seen, created_at, home_x, home_y,
+                                 token_sha256)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, 'idle', ?7, ?8, ?9, ?10, ?10, ?7, ?8, ?11)
              RETURNING *",
         )
         .bind(mission_id as i64)
@@ -379,9 +444,72 @@ impl Store for SqliteStore {
         .bind(spec.pose.position.y)
         .bind(spec.pose.heading)
         .bind(now.millis())
+        .bind(token_sha256)
         .fetch_one(&self.pool)
         .await?;
         robot_from_row(&row)
+    }
+
+    async fn set_robot_token(&self, robot_id: RobotId, token_sha256: &str) -> Result<(), StoreError> {
+        sqlx::query("UPDATE robots SET token_sha256 = ?1 WHERE id = ?2")
+            .bind(token_sha256)
+            .bind(robot_id as i64)
+            .execute(&self.pool)
+            .await?;
+        Ok(())
+    }
+
+    async fn robot_tokens(&self) -> Result<Vec<(RobotId, String)>, StoreError> {
+        let rows = sqlx::query("SELECT id, token_sha256 FROM robots WHERE token_sha256 IS NOT NULL")
+            .fetch_all(&self.pool)
+            .await?;
+        rows.iter().map(|row| Ok((row.try_get::<i64, _>("id")? as RobotId, row.try_get("token_sha256")?))).collect()
+    }
+
+    async fn blacklist(&self, mission_id: MissionId) -> Result<Vec<BlacklistEntry>, StoreError> {
+        sqlx::query(
+            "SELECT b.* FROM blacklist b JOIN robots r ON r.id = b.robot_id WHERE r.mission_id = ?1
+             ORDER BY b.created_at, b.robot_id",
+        )
+        .bind(mission_id as i64)
+        .fetch_all(&self.pool)
+        .await?
+        .iter()
+        .map(|row| {
+            Ok(BlacklistEntry {
+                robot_id: row.try_get::<i64, _>("robot_id")? as RobotId,
+                cell: Cell::new(row.try_get::<i64, _>("cell_x")? as i32, row.try_get::<i64, _>("cell_y")? as i32),
+                cause: row.try_get("cause")?,
+                created_at: Timestamp(row.try_get("created_at")?),
+            })
+        })
+        .collect()
+    }
+
+    async fn forbidden_regions(&self, mission_id: MissionId) -> Result<Vec<Region>, StoreError> {
+        sqlx::query("SELECT * FROM forbidden_regions WHERE mission_id = ?1 AND allowed_at IS NULL ORDER BY id")
+            .bind(mission_id as i64)
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(|row| {
+                Ok(Region {
+                    id: row.try_get::<i64, _>("id")? as u64,
+                    mission_id: row.try_get::<i64, _>("mission_id")? as MissionId,
+                    min: Point2::new(row.try_get("min_x")?, row.try_get("min_y")?),
+                    max: Point2::new(row.try_get("max_x")?, row.try_get("max_y")?),
+                    actor: row.try_get("actor")?,
+                    reason: row.try_get("reason")?,
+                    created_at: Timestamp(row.try_get("created_at")?),
+                })
+            })
+            .collect()
+    }
+
+    async fn max_region_id(&self) -> Result<u64, StoreError> {
+        let max: Option<i64> =
+            sqlx::query_scalar("SELECT MAX(id) FROM forbidden_regions").fetch_one(&self.pool).await?;
+        Ok(max.unwrap_or(0) as u64)
     }
 
     async fn robots(&self, mission_id: MissionId) -> Result<Vec<RobotRecord>, StoreError> {
@@ -431,27 +559,33 @@ impl Store for SqliteStore {
     }
 
     async fn tasks(&self, filter: TaskFilter) -> Result<Vec<TaskRecord>, StoreError> {
-        let rows = sqlx::query(
-            "SELECT * FROM tasks WHERE mission_id = ?1 AND (?2 IS NULL OR robot_id = ?2) ORDER BY id DESC LIMIT ?3",
-        )
-        .bind(filter.mission_id as i64)
-        .bind(filter.robot_id.map(|r| r as i64))
-        .bind(i64::from(filter.limit))
-        .fetch_all(&self.pool)
-        .await?;
-        let mut tasks = rows.iter().map(task_from_row).collect::<Result<Vec<_>, _>>()?;
-        if !tasks.is_empty() {
-            let transitions = sqlx::query(
-                "SELECT * FROM task_transitions WHERE task_id IN
-                    (SELECT id FROM tasks WHERE mission_id = ?1 AND (?2 IS NULL OR robot_id = ?2)
-                     ORDER BY id DESC LIMIT ?3)
-                 ORDER BY id",
-            )
+        // The selected tasks, as a literal so that both queries stay static SQL.
+        macro_rules! selected {
+            () => {
+                "SELECT id FROM tasks WHERE mission_id = ?1 AND (?2 IS NULL OR robot_id = ?2)
+                 AND (?3 IS NULL OR kind = ?3) AND (?4 = 0 OR state IN ('assigned', 'active'))
+                 ORDER BY id DESC LIMIT ?5"
+            };
+        }
+        let rows = sqlx::query(concat!("SELECT * FROM tasks WHERE id IN (", selected!(), ") ORDER BY id DESC"))
             .bind(filter.mission_id as i64)
             .bind(filter.robot_id.map(|r| r as i64))
+            .bind(filter.kind.map(TaskKind::as_str))
+            .bind(i64::from(filter.open_only))
             .bind(i64::from(filter.limit))
             .fetch_all(&self.pool)
             .await?;
+        let mut tasks = rows.iter().map(task_from_row).collect::<Result<Vec<_>, _>>()?;
+        if !tasks.is_empty() {
+            let transitions =
+                sqlx::query(concat!("SELECT * FROM task_transitions WHERE task_id IN (", selected!(), ") ORDER BY id"))
+                    .bind(filter.mission_id as i64)
+                    .bind(filter.robot_id.map(|r| r as i64))
+                    .bind(filter.kind.map(TaskKind::as_str))
+                    .bind(i64::from(filter.open_only))
+                    .bind(i64::from(filter.limit))
+                    .fetch_all(&self.pool)
+                    .await?;
             let mut by_task: BTreeMap<TaskId, Vec<Transition>> = BTreeMap::new();
             for row in &transitions {
                 let task_id = row.try_get::<i64, _>("task_id")? as TaskId;
@@ -564,8 +698,9 @@ impl Store for SqliteStore {
         for task in &changes.new_tasks {
             sqlx::query(
                 "INSERT INTO tasks (id, mission_id, robot_id, target_x, target_y, state, policy, utility, path_cost,
-                                    created_at, updated_at, gain_x, gain_y, gain_width, gain_height)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
+                                    created_at, updated_at, gain_x, gain_y, gain_width, gain_height, kind,
+                                    created_by, note)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18)",
             )
             .bind(task.id as i64)
             .bind(task.mission_id as i64)
@@ -582,6 +717,9 @@ impl Store for SqliteStore {
             .bind(task.gain_region.map(|r| i64::from(r.y)))
             .bind(task.gain_region.map(|r| i64::from(r.width)))
             .bind(task.gain_region.map(|r| i64::from(r.height)))
+            .bind(task.kind.as_str())
+            .bind(&task.created_by)
+            .bind(&task.note)
             .execute(&mut *tx)
             .await?;
             for t in &task.transitions {
@@ -651,14 +789,64 @@ impl Store for SqliteStore {
             .execute(&mut *tx)
             .await?;
         }
+        for entry in &changes.blacklisted {
+            sqlx::query(
+                "INSERT INTO blacklist (robot_id, cell_x, cell_y, cause, created_at) VALUES (?1, ?2, ?3, ?4, ?5)
+                 ON CONFLICT (robot_id, cell_x, cell_y) DO UPDATE SET cause = excluded.cause,
+                     created_at = excluded.created_at",
+            )
+            .bind(entry.robot_id as i64)
+            .bind(i64::from(entry.cell.x))
+            .bind(i64::from(entry.cell.y))
+            .bind(&entry.cause)
+            .bind(entry.created_at.millis())
+            .execute(&mut *tx)
+            .await?;
+        }
+        for (robot, cell) in &changes.unblacklisted {
+            sqlx::query("DELETE FROM blacklist WHERE robot_id = ?1 AND cell_x = ?2 AND cell_y = ?3")
+                .bind(*robot as i64)
+                .bind(i64::from(cell.x))
+                .bind(i64::from(cell.y))
+                .execute(&mut *tx)
+                .await?;
+        }
+        for region in &changes.forbidden {
+            sqlx::query(
+                "INSERT INTO forbidden_regions (id, mission_id, min_x, min_y, max_x, max_y, actor, reason, created_at)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+            )
+            .bind(region.id as i64)
+            .bind(region.mission_id as i64)
+            .bind(region.min.x)
+            .bind(region.min.y)
+            .bind(region.max.x)
+            .bind(region.max.y)
+            .bind(&region.actor)
+            .bind(&region.reason)
+            .bind(region.created_at.millis())
+            .execute(&mut *tx)
+            .await?;
+        }
+        for region in &changes.allowed {
+            sqlx::query("UPDATE forbidden_regions SET allowed_at = ?1 WHERE id = ?2")
+                .bind(now.millis())
+                .bind(*region as i64)
+                .execute(&mut *tx)
+                .await?;
+        }
         if let Some(m) = &changes.mission {
             sqlx::query(
-                "UPDATE missions SET state = ?1, replans = ?2, map_updates = ?3, updated_at = ?4 WHERE id = ?5",
+                "UPDATE missions SET state = ?1, replans = ?2, map_updates = ?3, updated_at = ?4, paused = ?5,
+                        leftovers = ?6
+                 WHERE id = ?7",
             )
             .bind(m.state.as_str())
             .bind(m.replans as i64)
             .bind(m.map_updates as i64)
             .bind(now.millis())
+            .bind(i64::from(m.paused))
+            .bind(leftovers_json(&m.leftovers))
             .bind(m.id as i64)
             .execute(&mut *tx)
             .await?;
@@ -680,6 +868,11 @@ mod tests {
             policy: PolicyConfig::default_for("burgard").unwrap(),
             replan: ReplanSettings::default(),
             scoped_by_communication: true,
+            lifecycle: LifecycleSettings {
+                lease: Duration::from_secs(7),
+                stall: Duration::from_secs(11),
+                rendezvous: Some(Point2::new(0.5, -1.5)),
+            },
         }
     }
 
@@ -703,8 +896,10 @@ mod tests {
         let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
         let mission = store.create_mission(&spec(), Timestamp(1_000)).await.unwrap();
         assert_eq!(mission.spec, spec());
-        let mut robot = store.create_robot(mission.id, &robot_spec("r1"), Timestamp(2_000)).await.unwrap();
+        let mut robot = store.create_robot(mission.id, &robot_spec("r1"), "", Timestamp(2_000)).await.unwrap();
         assert_eq!(robot.state, RobotState::Idle);
+        assert_eq!(robot.home, Point2::new(0.5, 0.5));
+        store.set_robot_token(robot.id, "abc123").await.unwrap();
 
         let rect = CellRect::new(3, 4, 2, 1);
         let patch = Patch::from_probabilities(rect, &[0.2, 0.9], &[false, true]).unwrap();
@@ -712,20 +907,24 @@ mod tests {
             id: 7,
             mission_id: mission.id,
             robot_id: robot.id,
+            kind: TaskKind::Goto,
             target: Point2::new(1.0, 2.0),
             state: TaskState::Assigned,
-            policy: "burgard".into(),
+            policy: "operator".into(),
             utility: 0.5,
             path_cost: 1.5,
             gain_region: Some(CellRect::new(1, 2, 3, 4)),
+            created_by: "operator:ana".into(),
+            note: "check the lab".into(),
             created_at: Timestamp(3_000),
             updated_at: Timestamp(3_000),
             transitions: vec![Transition {
                 from: None,
                 to: TaskState::Assigned,
                 at: Timestamp(3_000),
-                cause: "replanning".into(),
-                actor: Actor::Policy,
+                cause: "operator ana".into(),
+                actor: Actor::Operator,
+                by: "ana".into(),
             }],
         };
         let frame = spec().frame;
@@ -747,13 +946,33 @@ mod tests {
         robot.current_task = Some(7);
         robot.last_map_seq = 5;
         robot.assignment_version = 1;
+        robot.lost = true;
+        let leftovers =
+            vec![Leftover { reason: LeftoverReason::TooNarrow, cells: 12, position: Point2::new(1.5, 2.5) }];
+        let region = Region {
+            id: 3,
+            mission_id: mission.id,
+            min: Point2::new(0.0, 0.0),
+            max: Point2::new(1.0, 1.0),
+            actor: "ana".into(),
+            reason: "wet floor".into(),
+            created_at: Timestamp(3_000),
+        };
+        let blacklisted = BlacklistEntry {
+            robot_id: robot.id,
+            cell: Cell::new(4, 5),
+            cause: "unreachable".into(),
+            created_at: Timestamp(3_000),
+        };
         store
             .commit(&Changeset {
                 mission: Some(MissionCounters {
                     id: mission.id,
-                    state: MissionState::Active,
+                    state: MissionState::Completed,
                     replans: 1,
                     map_updates: 1,
+                    paused: true,
+                    leftovers: leftovers.clone(),
                 }),
                 robots: vec![robot.clone()],
                 new_tasks: vec![task.clone()],
@@ -769,6 +988,10 @@ mod tests {
                     actor: "ops".into(),
                 }],
                 segmentation: Some((mission.id, segmentation.clone())),
+                blacklisted: vec![blacklisted.clone(), BlacklistEntry { cell: Cell::new(9, 9), ..blacklisted.clone() }],
+                unblacklisted: vec![],
+                forbidden: vec![region.clone(), Region { id: 4, ..region.clone() }],
+                allowed: vec![],
                 at: Some(Timestamp(3_000)),
             })
             .await
@@ -784,8 +1007,11 @@ mod tests {
                         at: Timestamp(4_000),
                         cause: "robot arrived".into(),
                         actor: Actor::Robot,
+                        by: String::new(),
                     },
                 }],
+                unblacklisted: vec![(robot.id, Cell::new(9, 9))],
+                allowed: vec![4],
                 ..Changeset::default()
             })
             .await
@@ -797,6 +1023,14 @@ mod tests {
         let missions = store.missions().await.unwrap();
         assert_eq!(missions.len(), 1);
         assert_eq!(missions[0].replans, 1);
+        assert_eq!(missions[0].spec.lifecycle, spec().lifecycle);
+        assert!(missions[0].paused);
+        assert_eq!(missions[0].state, MissionState::Completed);
+        assert_eq!(missions[0].leftovers, leftovers);
+        assert_eq!(store.blacklist(mission.id).await.unwrap(), vec![blacklisted]);
+        assert_eq!(store.forbidden_regions(mission.id).await.unwrap(), vec![region]);
+        assert_eq!(store.max_region_id().await.unwrap(), 4);
+        assert_eq!(store.robot_tokens().await.unwrap(), vec![(robot.id, "abc123".to_owned())]);
         assert_eq!(store.robots(mission.id).await.unwrap(), vec![robot.clone()]);
         let patches = store.patches(mission.id).await.unwrap();
         assert_eq!(patches.len(), 1);
@@ -806,11 +1040,20 @@ mod tests {
         assert!(patches[0].patch.log_odds()[1].is_nan());
         assert!(store.open_tasks(mission.id).await.unwrap().is_empty());
         let tasks =
-            store.tasks(TaskFilter { mission_id: mission.id, robot_id: Some(robot.id), limit: 10 }).await.unwrap();
+            store.tasks(TaskFilter { robot_id: Some(robot.id), ..TaskFilter::mission(mission.id, 10) }).await.unwrap();
         assert_eq!(tasks.len(), 1);
         assert_eq!(tasks[0].state, TaskState::Reached);
+        assert_eq!(
+            (tasks[0].kind, tasks[0].created_by.as_str(), tasks[0].note.as_str()),
+            (TaskKind::Goto, "operator:ana", "check the lab")
+        );
         assert_eq!(tasks[0].transitions.len(), 2);
+        assert_eq!(tasks[0].transitions[0].by, "ana");
         assert_eq!(tasks[0].transitions[1].actor, Actor::Robot);
+        let filter = TaskFilter { kind: Some(TaskKind::Explore), ..TaskFilter::mission(mission.id, 10) };
+        assert!(store.tasks(filter).await.unwrap().is_empty());
+        let filter = TaskFilter { open_only: true, ..TaskFilter::mission(mission.id, 10) };
+        assert!(store.tasks(filter).await.unwrap().is_empty());
         assert_eq!(tasks[0].gain_region, Some(CellRect::new(1, 2, 3, 4)));
         assert_eq!(missions[0].spec.policy.name(), "minpos");
         let events = store.events(mission.id).await.unwrap();
@@ -825,7 +1068,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let store = SqliteStore::open(&dir.path().join("s.db"), Durability::Full).await.unwrap();
         let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
-        let robot = store.create_robot(mission.id, &robot_spec("r1"), Timestamp(1)).await.unwrap();
+        let robot = store.create_robot(mission.id, &robot_spec("r1"), "", Timestamp(1)).await.unwrap();
         let mut moved = robot.clone();
         moved.last_map_seq = 9;
         // A task for a robot that does not exist violates a foreign key.
@@ -833,12 +1076,15 @@ mod tests {
             id: 1,
             mission_id: mission.id,
             robot_id: 999,
+            kind: TaskKind::Explore,
             target: Point2::origin(),
             state: TaskState::Assigned,
             policy: "burgard".into(),
             utility: 0.0,
             path_cost: 0.0,
             gain_region: None,
+            created_by: "policy".into(),
+            note: String::new(),
             created_at: Timestamp(1),
             updated_at: Timestamp(1),
             transitions: vec![],

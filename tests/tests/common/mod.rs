@@ -26,12 +26,17 @@ pub struct TestExecutive {
 impl TestExecutive {
     /// Serves on 127.0.0.1:0 with the database at `db`.
     pub async fn start(db: &Path) -> Self {
+        Self::start_with(coordinator::Config::new(db)).await
+    }
+
+    /// Serves on 127.0.0.1:0 with `config`.
+    pub async fn start_with(config: coordinator::Config) -> Self {
+        let db = config.db_path.clone();
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let address = listener.local_addr().unwrap();
         let stop = CancellationToken::new();
-        let config = coordinator::Config::new(db);
         let task = tokio::spawn(coordinator::run(listener, stop.clone().cancelled_owned(), config));
-        Self { address, url: format!("http://{address}"), db: db.to_owned(), stop, task }
+        Self { address, url: format!("http://{address}"), db, stop, task }
     }
 
     /// Shuts down gracefully and waits until it has stopped.
@@ -107,6 +112,7 @@ pub async fn create_mission(
             policy: Some(pb::PolicySpec { name: policy.into(), params: Default::default() }),
             replan: None,
             scoped_by_communication: false,
+            ..Default::default()
         })
         .await
         .unwrap()

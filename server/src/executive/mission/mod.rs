@@ -6,6 +6,13 @@
 //! as a [`Changeset`] without touching anything; the executive commits that
 //! changeset to the store; [`Mission::apply`] then makes it the live state
 //! and pushes changed assignments to the robots' watchers.
+//!
+//! [`lifecycle`] adds what keeps a fleet honest (leases, stall detection,
+//! blacklisted targets, completion with reasons); [`operator`] the overrides
+//! of Simmons et al. 2000, §4.2, forbidden regions and pausing.
+
+mod lifecycle;
+mod operator;
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
@@ -17,16 +24,43 @@ use tokio::time::Instant;
 use exploration::cost::CostCache;
 use exploration::frontier::{FrontierCluster, FrontierMap, clusters};
 use exploration::fusion::MapFusion;
-use exploration::grid::{CellRect, OccupancyGrid};
+use exploration::grid::{Cell, CellRect, OccupancyGrid};
 use exploration::math::Point2;
 use exploration::policy::{Bid as PolicyBid, CurrentTask, Plan, PlanningInput, Policy, PolicyConfig, RobotView};
 
 use crate::domain::{
-    Actor, AssignedTask, Assignment, Bid, Heartbeat, MapUpdate, MissionEvent, MissionRecord, MissionState, Pose,
-    RobotId, RobotRecord, RobotState, StoredSegmentation, TaskId, TaskRecord, TaskState, Timestamp, Transition,
+    Actor, AssignedTask, Assignment, BY_EXECUTIVE, BY_POLICY, Bid, Heartbeat, Leftover, MapUpdate, MissionEvent,
+    MissionRecord, MissionState, Pose, Region, RobotId, RobotRecord, RobotState, StoredSegmentation, TaskId, TaskKind,
+    TaskRecord, TaskState, Timestamp, Transition,
 };
 use crate::error::Error;
 use crate::store::{Changeset, LoggedPatch, MissionCounters, TaskChange};
+
+/// How close to its home a robot counts as home, metres.
+const HOME_TOLERANCE_M: f64 = 0.5;
+
+/// A task about to be created.
+#[derive(Debug, Clone)]
+struct TaskDraft {
+    kind: TaskKind,
+    target: Point2,
+    created_by: String,
+    note: String,
+    policy: String,
+    utility: f64,
+    path_cost: f64,
+    gain_region: Option<CellRect>,
+}
+
+/// What the store holds of a mission besides its record.
+#[derive(Debug, Default)]
+pub(crate) struct StoredMission {
+    pub(crate) robots: Vec<RobotRecord>,
+    pub(crate) patches: Vec<LoggedPatch>,
+    pub(crate) open_tasks: Vec<TaskRecord>,
+    pub(crate) blacklist: Vec<crate::domain::BlacklistEntry>,
+    pub(crate) forbidden: Vec<Region>,
+}
 
 /// A robot and the channel its assignment is pushed on.
 #[derive(Debug)]
@@ -35,6 +69,14 @@ struct RobotSlot {
     watch: watch::Sender<Assignment>,
     /// Whom it can communicate with, as it last said.
     peers: Vec<RobotId>,
+    /// When it last reported, on the executive's clock (paused in tests).
+    last_heard: Instant,
+    /// How close it has come to its current target, and since when.
+    progress: Option<lifecycle::Progress>,
+    /// Targets it must not be sent to again until the map around them changes.
+    blacklist: Vec<lifecycle::Blacklisted>,
+    /// Its home task failed since the mission completed: do not send it again.
+    home_failed: bool,
 }
 
 /// A mission's live state.
@@ -60,16 +102,25 @@ pub(crate) struct Mission {
     pending_replan: Option<String>,
     /// Tasks whose target was found explored at a replanning (not to trigger again).
     explored_tasks: std::collections::HashSet<TaskId>,
+    /// Regions where no target is assigned.
+    forbidden: Vec<Region>,
+    /// Bumped whenever something an operator watches changes.
+    changed: watch::Sender<u64>,
 }
 
 /// Everything needed to run a policy off the mission's lock.
 #[derive(Debug)]
 pub(crate) struct PlanningJob {
-    /// The robots in the mission's order: the plan's order.
+    /// The robots in the policy's pool, in the mission's order: the plan's order.
     order: Vec<RobotId>,
     /// One part per coordination scope: the whole team, or each connected
     /// sub-team when the mission is scoped by communication.
     parts: Vec<PlanningPart>,
+    /// Forbidden regions, in cells.
+    forbidden: Vec<CellRect>,
+    /// Blacklist entries found expired: the map around them changed.
+    expired: Vec<(RobotId, Cell)>,
+    min_frontier_size: usize,
     policy: Arc<dyn Policy>,
     threads: usize,
     seed: u64,
@@ -78,22 +129,41 @@ pub(crate) struct PlanningJob {
 /// What a planning job produced.
 #[derive(Debug)]
 pub(crate) struct JobOutcome {
+    /// Targets of the robots in the pool.
     pub(crate) plan: Plan,
-    /// Whether some scope holds a map with no frontier left: the mission is
-    /// complete (Burgard et al. 2005 §VI-D: as soon as the known area in the
-    /// map of one robot covers the whole environment).
-    pub(crate) explored: bool,
+    /// For robots exploring an operator's region: the region's next frontier,
+    /// `None` when no reachable frontier is left inside.
+    region_targets: Vec<(RobotId, Option<exploration::policy::Target>)>,
+    /// No robot can explore anything more: the map of some scope has no
+    /// frontier left (Burgard et al. 2005 §VI-D: as soon as the known area
+    /// in the map of one robot covers the whole environment), or no robot
+    /// can reach or may be sent to what is left.
+    pub(crate) complete: bool,
+    /// Nobody was in the pool (every robot lost or overridden) and the map
+    /// has frontier: whether the mission is complete cannot be told, so it
+    /// keeps its state.
+    undecided: bool,
+    /// What is left at completion, and why.
+    leftovers: Vec<Leftover>,
+    expired: Vec<(RobotId, Cell)>,
 }
 
 /// One coordination scope: its robots and the map they hold.
 #[derive(Debug)]
 struct PlanningPart {
     grid: OccupancyGrid,
+    /// Every frontier cluster of the map.
+    all_clusters: Vec<FrontierCluster>,
+    /// The clusters the policy may choose from: large enough, forbidden
+    /// cells and pinned frontiers taken out.
     clusters: Vec<FrontierCluster>,
+    /// The robots in the policy's pool.
     robots: Vec<RobotView>,
     bids: Vec<Vec<PolicyBid>>,
     /// Targets of robots outside the scope, with their sensor ranges.
-    reserved: Vec<(exploration::grid::Cell, f64)>,
+    reserved: Vec<(Cell, f64)>,
+    /// Robots exploring an operator's region, with the region.
+    regions: Vec<(RobotView, CellRect)>,
     /// The map holds known cells and no frontier.
     explored: bool,
 }
@@ -104,41 +174,82 @@ impl PlanningJob {
         let mut targets = vec![None; self.order.len()];
         let mut segmentation = None;
         let mut largest = 0;
-        for part in &self.parts {
-            let input = PlanningInput {
-                grid: &part.grid,
-                clusters: &part.clusters,
-                robots: &part.robots,
-                threads: self.threads,
-                bids: &part.bids,
-                seed: self.seed,
-                reserved: &part.reserved,
-            };
-            let mut cache = CostCache::new(&part.grid);
-            let plan = self.policy.plan(&input, &mut cache);
-            for (robot, target) in part.robots.iter().zip(plan.targets) {
-                if let Some(slot) = self.order.iter().position(|id| *id == robot.id) {
-                    targets[slot] = target;
+        let mut region_targets = Vec::new();
+        let mut caches: Vec<CostCache<'_>> = self.parts.iter().map(|part| CostCache::new(&part.grid)).collect();
+        for (part, cache) in self.parts.iter().zip(&mut caches) {
+            if !part.robots.is_empty() {
+                let input = PlanningInput {
+                    grid: &part.grid,
+                    clusters: &part.clusters,
+                    robots: &part.robots,
+                    threads: self.threads,
+                    bids: &part.bids,
+                    seed: self.seed,
+                    reserved: &part.reserved,
+                };
+                let plan = self.policy.plan(&input, cache);
+                for (robot, target) in part.robots.iter().zip(plan.targets) {
+                    if let Some(slot) = self.order.iter().position(|id| *id == robot.id) {
+                        targets[slot] = target;
+                    }
+                }
+                if part.robots.len() > largest {
+                    largest = part.robots.len();
+                    segmentation = plan.segmentation;
                 }
             }
-            if part.robots.len() > largest {
-                largest = part.robots.len();
-                segmentation = plan.segmentation;
+            for (robot, region) in &part.regions {
+                let target = lifecycle::region_target(&part.all_clusters, robot, *region, &self.forbidden, cache);
+                region_targets.push((robot.id, target));
             }
         }
         let explored = self.parts.iter().any(|part| part.explored);
-        JobOutcome { plan: Plan { targets, segmentation }, explored }
+        let idle_pool = !self.order.is_empty() && targets.iter().all(Option::is_none);
+        let mut complete = explored;
+        let mut leftovers = Vec::new();
+        if !explored && idle_pool {
+            // The policy found nothing for anyone: is anything left that some robot could explore?
+            complete = true;
+            for (part, cache) in self.parts.iter().zip(&mut caches) {
+                if part.robots.is_empty() {
+                    continue;
+                }
+                let remaining = exploration::completion::remaining_frontier(
+                    &part.all_clusters,
+                    self.min_frontier_size,
+                    &part.robots,
+                    &self.forbidden,
+                    cache,
+                    self.threads,
+                );
+                complete &= remaining.is_exhausted();
+                let frame = part.grid.frame();
+                leftovers.extend(remaining.left.iter().map(|&(i, reason)| Leftover {
+                    reason: lifecycle::leftover_reason(reason),
+                    cells: part.all_clusters[i].len(),
+                    position: frame.world_from_cell(part.all_clusters[i].representative),
+                }));
+            }
+            if !complete {
+                leftovers.clear();
+            }
+        }
+        let undecided = self.order.is_empty() && !explored;
+        JobOutcome {
+            plan: Plan { targets, segmentation },
+            region_targets,
+            complete,
+            undecided,
+            leftovers,
+            expired: self.expired,
+        }
     }
 }
 
 impl Mission {
     /// A mission from its stored state: replays the map log, reopens its tasks.
-    pub(crate) fn restore(
-        record: MissionRecord,
-        robots: Vec<RobotRecord>,
-        patches: Vec<LoggedPatch>,
-        open_tasks: Vec<TaskRecord>,
-    ) -> Result<Self, Error> {
+    pub(crate) fn restore(record: MissionRecord, stored: StoredMission, now: Instant) -> Result<Self, Error> {
+        let StoredMission { robots, patches, open_tasks, blacklist, forbidden } = stored;
         let policy: Arc<dyn Policy> = Arc::from(record.spec.policy.build());
         let mut fusion = MapFusion::new(record.spec.frame);
         let mut known_cells = 0;
@@ -159,22 +270,27 @@ impl Mission {
             names: HashMap::new(),
             open_tasks: open_tasks.into_iter().map(|t| (t.id, t)).collect(),
             bids: BTreeMap::new(),
-            last_replan: Instant::now(),
+            last_replan: now,
             frontier_churn: 0,
             layer_changes: 0,
             pending_replan: Some("executive restarted".to_owned()),
             explored_tasks: std::collections::HashSet::new(),
+            forbidden,
+            changed: watch::channel(0).0,
             record,
         };
         for robot in robots {
-            mission.insert_robot(robot);
+            mission.insert_robot(robot, now);
+        }
+        for entry in blacklist {
+            mission.add_blacklisted(entry);
         }
         Ok(mission)
     }
 
     /// A mission just created.
-    pub(crate) fn new(record: MissionRecord) -> Self {
-        let mut mission = Self::restore(record, Vec::new(), Vec::new(), Vec::new())
+    pub(crate) fn new(record: MissionRecord, now: Instant) -> Self {
+        let mut mission = Self::restore(record, StoredMission::default(), now)
             .unwrap_or_else(|_| unreachable!("an empty log always applies"));
         mission.pending_replan = None;
         mission
@@ -221,13 +337,51 @@ impl Mission {
         robot.current_task.and_then(|t| self.open_tasks.get(&t)).map(|t| t.target)
     }
 
-    /// Adds a robot just registered (or restored).
-    pub(crate) fn insert_robot(&mut self, record: RobotRecord) {
+    /// Adds a robot just registered (or restored); its lease starts now.
+    pub(crate) fn insert_robot(&mut self, record: RobotRecord, now: Instant) {
         let assignment = self.assignment_for(&record);
         let (watch, _) = watch::channel(assignment);
         self.names.insert(record.name.clone(), record.id);
-        self.robots.insert(record.id, RobotSlot { record, watch, peers: Vec::new() });
+        self.robots.insert(
+            record.id,
+            RobotSlot {
+                record,
+                watch,
+                peers: Vec::new(),
+                last_heard: now,
+                progress: None,
+                blacklist: Vec::new(),
+                home_failed: false,
+            },
+        );
         self.pending_replan = Some("robot joined".to_owned());
+        self.changed.send_modify(|v| *v += 1);
+    }
+
+    /// A receiver that sees a new value whenever an operator's view of the
+    /// mission changes (assignments, liveness, state).
+    pub(crate) fn subscribe(&self) -> watch::Receiver<u64> {
+        self.changed.subscribe()
+    }
+
+    /// The mission's forbidden regions.
+    pub(crate) fn forbidden(&self) -> &[Region] {
+        &self.forbidden
+    }
+
+    /// How many targets are blacklisted for a robot.
+    pub(crate) fn blacklisted(&self, id: RobotId) -> usize {
+        self.robots.get(&id).map_or(0, |s| s.blacklist.len())
+    }
+
+    /// The kind of a robot's current task.
+    pub(crate) fn task_kind_of(&self, robot: &RobotRecord) -> Option<TaskKind> {
+        robot.current_task.and_then(|t| self.open_tasks.get(&t)).map(|t| t.kind)
+    }
+
+    /// Whether the policy assigns this robot: it is heard from and not under an override.
+    fn in_pool(&self, robot: &RobotRecord) -> bool {
+        !robot.lost && !robot.current_task.and_then(|t| self.open_tasks.get(&t)).is_some_and(TaskRecord::is_override)
     }
 
     /// The robot's assignment as it stands.
@@ -238,6 +392,7 @@ impl Mission {
     fn assignment_for(&self, robot: &RobotRecord) -> Assignment {
         let task = robot.current_task.and_then(|t| self.open_tasks.get(&t)).map(|t| AssignedTask {
             id: t.id,
+            kind: t.kind,
             target: t.target,
             utility: t.utility,
             path_cost: t.path_cost,
@@ -249,6 +404,7 @@ impl Mission {
             task,
             policy: self.record.spec.policy.name(),
             mission_state: self.record.state,
+            paused: self.record.paused,
         }
     }
 
@@ -340,6 +496,8 @@ impl Mission {
         next.distance_m += (pose.position - robot.pose.position).norm();
         next.pose = pose;
         next.last_seen = now;
+        // A report renews the lease: a lost robot rejoins the pool.
+        next.lost = false;
         next
     }
 
@@ -349,6 +507,8 @@ impl Mission {
             state: self.record.state,
             replans: self.record.replans,
             map_updates: self.record.map_updates,
+            paused: self.record.paused,
+            leftovers: self.record.leftovers.clone(),
         }
     }
 
@@ -411,15 +571,18 @@ impl Mission {
         let current = robot.current_task.filter(|t| heartbeat.task_id == Some(*t));
         if let Some(task) = current.and_then(|t| self.open_tasks.get(&t)) {
             let ended = match heartbeat.state {
+                // A hold lasts until an operator ends it.
+                RobotState::Arrived if task.kind == TaskKind::Hold => None,
                 RobotState::Arrived => Some((TaskState::Reached, "robot arrived".to_owned())),
-                RobotState::Failed => Some((
-                    TaskState::Failed,
-                    if heartbeat.reason.is_empty() {
-                        "robot failed".to_owned()
+                RobotState::Failed => {
+                    let cause = if heartbeat.reason.is_empty() {
+                        "robot reported the target unreachable".to_owned()
                     } else {
-                        format!("robot failed: {}", heartbeat.reason)
-                    },
-                )),
+                        format!("robot reported the target unreachable: {}", heartbeat.reason)
+                    };
+                    changes.blacklisted.extend(self.blacklist_entry(task, &cause, now));
+                    Some((TaskState::Failed, cause))
+                }
                 RobotState::Moving if task.state == TaskState::Assigned => {
                     changes.task_changes.push(transition(task, TaskState::Active, "robot moving", Actor::Robot, now));
                     None
@@ -459,9 +622,17 @@ impl Mission {
         }
         for change in &changes.task_changes {
             if change.state.is_terminal() {
-                self.open_tasks.remove(&change.task_id);
-                if matches!(change.state, TaskState::Reached | TaskState::Failed) {
-                    self.pending_replan = Some(change.transition.cause.clone());
+                let Some(task) = self.open_tasks.remove(&change.task_id) else { continue };
+                if change.state == TaskState::Failed
+                    && task.kind == TaskKind::Home
+                    && task.created_by == BY_EXECUTIVE
+                    && let Some(slot) = self.robots.get_mut(&task.robot_id)
+                {
+                    slot.home_failed = true;
+                }
+                // Its robot is free: the others' plan may change too.
+                if change.state != TaskState::Preempted {
+                    self.pending_replan = Some(format!("task {}: {}", task.id, change.transition.cause));
                 }
             } else if let Some(task) = self.open_tasks.get_mut(&change.task_id) {
                 task.state = change.state;
@@ -474,16 +645,43 @@ impl Mission {
             self.pending_replan = Some("policy changed".to_owned());
         }
         if let Some(counters) = changes.mission {
+            if counters.state == MissionState::Active && self.record.state == MissionState::Completed {
+                for slot in self.robots.values_mut() {
+                    slot.home_failed = false;
+                }
+            }
+            if !counters.paused && self.record.paused {
+                self.pending_replan = Some("mission resumed".to_owned());
+            }
             self.record.state = counters.state;
             self.record.replans = counters.replans;
             self.record.map_updates = counters.map_updates;
+            self.record.paused = counters.paused;
+            self.record.leftovers = counters.leftovers;
         }
         for robot in changes.robots {
             let Some(slot) = self.robots.get_mut(&robot.id) else {
                 continue;
             };
+            if slot.record.lost && !robot.lost {
+                self.pending_replan = Some(format!("robot {} reported again", robot.id));
+            }
             slot.record = robot;
         }
+        for entry in changes.blacklisted {
+            self.add_blacklisted(entry);
+        }
+        for (robot, cell) in &changes.unblacklisted {
+            if let Some(slot) = self.robots.get_mut(robot) {
+                slot.blacklist.retain(|b| b.entry.cell != *cell);
+            }
+        }
+        if !changes.forbidden.is_empty() || !changes.allowed.is_empty() {
+            self.forbidden.retain(|r| !changes.allowed.contains(&r.id));
+            self.forbidden.extend(changes.forbidden);
+            self.pending_replan = Some("forbidden regions changed".to_owned());
+        }
+        self.changed.send_modify(|v| *v += 1);
         // Push every assignment whose version moved (after all records are in place).
         let updates: Vec<(RobotId, Assignment)> = self
             .robots
@@ -502,7 +700,7 @@ impl Mission {
     /// §II-C: when a robot reached its target, or travelled or waited long
     /// enough; and when the frontier changed enough).
     pub(crate) fn replan_reason(&self, now: Instant) -> Option<String> {
-        if self.robots.is_empty() {
+        if self.robots.is_empty() || self.record.paused {
             return None;
         }
         if let Some(reason) = &self.pending_replan {
@@ -513,10 +711,15 @@ impl Mission {
         let scoped = self.record.spec.scoped_by_communication;
         for slot in self.robots.values() {
             let robot = &slot.record;
-            if let Some(target) = self.target_of(robot) {
-                let explored = frame.cell_from_world(&target).is_none_or(|cell| !self.frontier.contains(cell));
+            if let Some(task) = robot.current_task.and_then(|t| self.open_tasks.get(&t)) {
+                let on_frontier = match task.kind {
+                    TaskKind::Explore | TaskKind::Pin => true,
+                    TaskKind::Goto => task.gain_region.is_some(),
+                    TaskKind::Hold | TaskKind::Home => false,
+                };
+                let explored = frame.cell_from_world(&task.target).is_none_or(|cell| !self.frontier.contains(cell));
                 // Once per task: a policy may keep a robot on an explored target.
-                if explored && robot.current_task.is_some_and(|t| !self.explored_tasks.contains(&t)) {
+                if on_frontier && explored && !self.explored_tasks.contains(&task.id) {
                     return Some(format!("target of robot {} explored", robot.id));
                 }
                 let travelled = robot.distance_m - robot.assigned_distance_m;
@@ -538,8 +741,8 @@ impl Mission {
         if changed && now.duration_since(self.last_replan) >= settings.interval {
             return Some("replanning interval elapsed".to_owned());
         }
-        if self.record.state == MissionState::Completed && !self.frontier.is_empty() {
-            return Some("new frontier after completion".to_owned());
+        if self.record.state == MissionState::Completed && self.frontier_churn > 0 {
+            return Some("the frontier changed after completion".to_owned());
         }
         None
     }
@@ -547,59 +750,116 @@ impl Mission {
     /// The inputs of a replanning.
     pub(crate) fn planning_job(&self, threads: usize) -> PlanningJob {
         let frame = &self.record.spec.frame;
-        let view = |r: &RobotRecord| RobotView {
-            id: r.id,
-            cell: frame.cell_from_world_unchecked(&r.pose.position),
-            capabilities: r.capabilities,
-            current: r.current_task.and_then(|t| self.open_tasks.get(&t)).and_then(|task| {
-                frame.cell_from_world(&task.target).map(|target| CurrentTask { target, gain_region: task.gain_region })
-            }),
+        let expired = self.expired_blacklist();
+        let view = |slot: &RobotSlot| {
+            let r = &slot.record;
+            RobotView {
+                id: r.id,
+                cell: frame.cell_from_world_unchecked(&r.pose.position),
+                capabilities: r.capabilities,
+                current: r.current_task.and_then(|t| self.open_tasks.get(&t)).and_then(|task| {
+                    frame
+                        .cell_from_world(&task.target)
+                        .map(|target| CurrentTask { target, gain_region: task.gain_region })
+                }),
+                excluded: slot
+                    .blacklist
+                    .iter()
+                    .filter(|b| !expired.contains(&(r.id, b.entry.cell)))
+                    .map(|b| lifecycle::exclusion(frame, b.entry.cell))
+                    .collect(),
+            }
         };
+        let forbidden: Vec<CellRect> = self.forbidden.iter().filter_map(|r| self.cell_rect(r.min, r.max)).collect();
+        // Frontier pinned to a robot is not offered to the others.
+        let pinned: Vec<Cell> = self
+            .open_tasks
+            .values()
+            .filter(|t| t.kind == TaskKind::Pin)
+            .filter_map(|t| frame.cell_from_world(&t.target))
+            .collect();
         let min_size = self.record.spec.policy.min_frontier_size();
-        let bids_of = |id: &RobotId| self.bids.get(id).cloned().unwrap_or_default();
+        let choosable = |all: &[FrontierCluster]| -> Vec<FrontierCluster> {
+            all.iter()
+                .filter(|c| c.len() >= min_size && !pinned.iter().any(|p| c.cells.contains(p)))
+                .filter_map(|c| c.retain(|cell| !forbidden.iter().any(|r| r.contains(cell))))
+                .collect()
+        };
+        let allowed = |cell: Cell| !forbidden.iter().any(|r| r.contains(cell));
+        let bids_of = |id: &RobotId| {
+            let mut bids = self.bids.get(id).cloned().unwrap_or_default();
+            bids.retain(|b| allowed(b.target));
+            bids
+        };
+        let part = |members: &[RobotId], grid: OccupancyGrid, frontier: &FrontierMap| {
+            let all_clusters = clusters(frontier, 1);
+            let pool: Vec<&RobotSlot> =
+                members.iter().map(|id| &self.robots[id]).filter(|s| self.in_pool(&s.record)).collect();
+            let regions = members
+                .iter()
+                .map(|id| &self.robots[id])
+                .filter(|s| !s.record.lost)
+                .filter_map(|s| {
+                    let task = s.record.current_task.and_then(|t| self.open_tasks.get(&t))?;
+                    let region = task.gain_region.filter(|_| task.kind == TaskKind::Goto)?;
+                    Some((view(s), region))
+                })
+                .collect();
+            let reserved = self
+                .robots
+                .values()
+                .filter(|s| !members.contains(&s.record.id))
+                .filter_map(|s| {
+                    let target = self.target_of(&s.record)?;
+                    Some((frame.cell_from_world(&target)?, s.record.capabilities.sensor_range_m))
+                })
+                .collect();
+            PlanningPart {
+                clusters: choosable(&all_clusters),
+                explored: frontier.is_empty() && grid.cells().iter().any(|&c| c != exploration::grid::UNKNOWN),
+                all_clusters,
+                grid,
+                robots: pool.iter().map(|s| view(s)).collect(),
+                bids: pool.iter().map(|s| bids_of(&s.record.id)).collect(),
+                reserved,
+                regions,
+            }
+        };
         let parts = if self.record.spec.scoped_by_communication {
             self.sub_teams()
                 .into_iter()
                 .map(|members| {
                     let grid = self.fusion.grid_of(&members);
                     let frontier = FrontierMap::detect(&grid);
-                    let reserved = self
-                        .robots
-                        .values()
-                        .filter(|s| !members.contains(&s.record.id))
-                        .filter_map(|s| {
-                            let target = self.target_of(&s.record)?;
-                            Some((frame.cell_from_world(&target)?, s.record.capabilities.sensor_range_m))
-                        })
-                        .collect();
-                    PlanningPart {
-                        clusters: clusters(&frontier, min_size),
-                        explored: frontier.is_empty() && grid.cells().iter().any(|&c| c != exploration::grid::UNKNOWN),
-                        grid,
-                        robots: members.iter().map(|id| view(&self.robots[id].record)).collect(),
-                        bids: members.iter().map(bids_of).collect(),
-                        reserved,
-                    }
+                    part(&members, grid, &frontier)
                 })
                 .collect()
         } else {
-            vec![PlanningPart {
-                grid: self.fusion.grid().clone(),
-                clusters: clusters(&self.frontier, min_size),
-                robots: self.robots.values().map(|s| view(&s.record)).collect(),
-                bids: self.robots.keys().map(bids_of).collect(),
-                reserved: Vec::new(),
-                explored: self.known_cells > 0 && self.frontier.is_empty(),
-            }]
+            let members: Vec<RobotId> = self.robots.keys().copied().collect();
+            let mut whole = part(&members, self.fusion.grid().clone(), &self.frontier);
+            whole.reserved.clear();
+            whole.explored = self.known_cells > 0 && self.frontier.is_empty();
+            vec![whole]
         };
         PlanningJob {
-            order: self.robots.keys().copied().collect(),
+            order: self.robots.values().filter(|s| self.in_pool(&s.record)).map(|s| s.record.id).collect(),
             parts,
+            forbidden,
+            expired,
+            min_frontier_size: min_size,
             policy: self.policy.clone(),
             threads,
             // Randomized policies draw from the mission and its replanning count: reproducible.
             seed: self.record.id.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.record.replans,
         }
+    }
+
+    /// The cells of a world rectangle, clipped to the map; `None` outside it.
+    fn cell_rect(&self, min: Point2, max: Point2) -> Option<CellRect> {
+        let frame = &self.record.spec.frame;
+        let low = frame.cell_from_world_unchecked(&min);
+        let high = frame.cell_from_world_unchecked(&max);
+        frame.clip(&CellRect::spanning(low, high))
     }
 
     /// The connected sub-teams of the communication graph the robots
@@ -650,15 +910,43 @@ impl Mission {
         task_ids: &AtomicU64,
     ) -> Changeset {
         let frame = &self.record.spec.frame;
-        let (plan, completed) = (&outcome.plan, outcome.explored);
+        let completed = outcome.complete;
         let mut changes = Changeset { at: Some(now), ..Changeset::default() };
         let policy = self.record.spec.policy.name();
-        for (slot, target) in self.robots.values().zip(&plan.targets) {
+        let pool = self.robots.values().filter(|s| self.in_pool(&s.record));
+        for (slot, target) in pool.zip(&outcome.plan.targets) {
             let robot = &slot.record;
             let current = robot.current_task.and_then(|t| self.open_tasks.get(&t));
-            let target = if completed { None } else { target.as_ref() };
-            let keep = match (current, target) {
-                (Some(task), Some(t)) => frame.cell_from_world(&task.target) == Some(t.cell),
+            let wanted = if completed {
+                // Burgard et al. 2005 stop here; a fleet also wants its robots back.
+                let home = self.record.spec.lifecycle.rendezvous.unwrap_or(robot.home);
+                let at_home = (robot.pose.position - home).norm() <= HOME_TOLERANCE_M.max(2.0 * frame.resolution);
+                (!at_home && !slot.home_failed).then(|| TaskDraft {
+                    kind: TaskKind::Home,
+                    target: home,
+                    created_by: BY_EXECUTIVE.to_owned(),
+                    note: "mission complete".to_owned(),
+                    policy: BY_EXECUTIVE.to_owned(),
+                    utility: 0.0,
+                    path_cost: 0.0,
+                    gain_region: None,
+                })
+            } else {
+                target.as_ref().map(|t| TaskDraft {
+                    kind: TaskKind::Explore,
+                    target: frame.world_from_cell(t.cell),
+                    created_by: BY_POLICY.to_owned(),
+                    note: String::new(),
+                    policy: policy.to_owned(),
+                    utility: t.utility,
+                    path_cost: t.path_cost,
+                    gain_region: t.gain_region,
+                })
+            };
+            let keep = match (current, &wanted) {
+                (Some(task), Some(w)) => {
+                    task.kind == w.kind && frame.cell_from_world(&task.target) == frame.cell_from_world(&w.target)
+                }
                 (None, None) => true,
                 _ => false,
             };
@@ -673,43 +961,30 @@ impl Mission {
             }
             if let Some(task) = current {
                 let (state, cause, actor) = if completed {
-                    (TaskState::Cancelled, "mission complete: no frontier left".to_owned(), Actor::Executive)
+                    (TaskState::Cancelled, "mission complete: no reachable frontier left".to_owned(), Actor::Executive)
                 } else {
                     (TaskState::Preempted, reason.to_owned(), Actor::Policy)
                 };
                 changes.task_changes.push(transition(task, state, &cause, actor, now));
             }
             next.current_task = None;
-            if let Some(t) = target {
-                let id = task_ids.fetch_add(1, Ordering::Relaxed) + 1;
-                changes.new_tasks.push(TaskRecord {
-                    id,
-                    mission_id: self.record.id,
-                    robot_id: robot.id,
-                    target: frame.world_from_cell(t.cell),
-                    state: TaskState::Assigned,
-                    policy: policy.to_owned(),
-                    utility: t.utility,
-                    path_cost: t.path_cost,
-                    gain_region: t.gain_region,
-                    created_at: now,
-                    updated_at: now,
-                    transitions: vec![Transition {
-                        from: None,
-                        to: TaskState::Assigned,
-                        at: now,
-                        cause: reason.to_owned(),
-                        actor: Actor::Policy,
-                    }],
-                });
-                next.current_task = Some(id);
+            if let Some(draft) = wanted {
+                let actor = if completed { Actor::Executive } else { Actor::Policy };
+                let task = self.open_task(robot.id, draft, reason, actor, "", now, task_ids);
+                next.current_task = Some(task.id);
+                changes.new_tasks.push(task);
             }
             next.assignment_version += 1;
             changes.robots.push(next);
         }
+        self.prepare_overrides(outcome, now, task_ids, &mut changes);
+        changes.unblacklisted.extend(outcome.expired.iter().copied());
         let mut counters = self.counters();
         counters.replans += 1;
-        counters.state = if completed { MissionState::Completed } else { MissionState::Active };
+        if !outcome.undecided {
+            counters.state = if completed { MissionState::Completed } else { MissionState::Active };
+            counters.leftovers = if completed { outcome.leftovers.clone() } else { Vec::new() };
+        }
         if counters.state != self.record.state {
             // Every robot's assignment carries the mission state: push it.
             for slot in self.robots.values() {
@@ -721,11 +996,49 @@ impl Mission {
             }
         }
         changes.mission = Some(counters);
-        if let Some(segmentation) = &plan.segmentation {
+        if let Some(segmentation) = &outcome.plan.segmentation {
             changes.segmentation =
                 Some((self.record.id, StoredSegmentation { computed_at: now, segmentation: segmentation.clone() }));
         }
         changes
+    }
+
+    /// A new task for a robot, with its first transition.
+    #[allow(clippy::too_many_arguments)]
+    fn open_task(
+        &self,
+        robot_id: RobotId,
+        draft: TaskDraft,
+        cause: &str,
+        actor: Actor,
+        by: &str,
+        now: Timestamp,
+        task_ids: &AtomicU64,
+    ) -> TaskRecord {
+        TaskRecord {
+            id: task_ids.fetch_add(1, Ordering::Relaxed) + 1,
+            mission_id: self.record.id,
+            robot_id,
+            kind: draft.kind,
+            target: draft.target,
+            state: TaskState::Assigned,
+            policy: draft.policy,
+            utility: draft.utility,
+            path_cost: draft.path_cost,
+            gain_region: draft.gain_region,
+            created_by: draft.created_by,
+            note: draft.note,
+            created_at: now,
+            updated_at: now,
+            transitions: vec![Transition {
+                from: None,
+                to: TaskState::Assigned,
+                at: now,
+                cause: cause.to_owned(),
+                actor,
+                by: by.to_owned(),
+            }],
+        }
     }
 
     /// Resets the replanning triggers after a committed replanning.
@@ -750,6 +1063,6 @@ fn transition(task: &TaskRecord, to: TaskState, cause: &str, actor: Actor, at: T
     TaskChange {
         task_id: task.id,
         state: to,
-        transition: Transition { from: Some(task.state), to, at, cause: cause.to_owned(), actor },
+        transition: Transition { from: Some(task.state), to, at, cause: cause.to_owned(), actor, by: String::new() },
     }
 }

@@ -1,0 +1,557 @@
+//! `coordctl`: the operator's command line for the exploration executive.
+//!
+//! It only speaks the public gRPC API, so everything it does a fleet manager
+//! or a script can do too. Exit codes: 0 done, 1 other failure, 2 bad usage,
+//! 3 not found, 4 refused in the current state (precondition, invalid
+//! argument, limits), 5 not authenticated or not allowed.
+
+mod output;
+mod picture;
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, anyhow, bail};
+use clap::{Parser, Subcommand};
+use tonic::Code;
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::{Channel, Endpoint};
+
+use exploration_proto::Bearer;
+use exploration_proto::v1 as pb;
+use exploration_proto::v1::missions_client::MissionsClient;
+use exploration_proto::v1::override_robot_request::{Action, Cancel, Hold, Home, Release};
+
+#[derive(Debug, Parser)]
+#[command(name = "coordctl", version, about = "Watch and steer robot fleets exploring through the executive")]
+struct Cli {
+    /// The executive's address.
+    #[arg(long, global = true, env = "COORDINATOR_URL", default_value = "http://127.0.0.1:50051")]
+    server: String,
+    /// The operator token (see `coordinator --operator-token`).
+    #[arg(long, global = true, env = "COORDINATOR_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// Your name, recorded with every change you make.
+    #[arg(long = "as", global = true, env = "USER", default_value = "operator")]
+    actor: String,
+    /// Print JSON instead of tables.
+    #[arg(long, global = true)]
+    json: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// List missions.
+    Missions,
+    /// Show, create, pause, resume a mission, or change its policy.
+    #[command(subcommand)]
+    Mission(MissionCommand),
+    /// List the policies the executive offers, with their parameters.
+    Policies,
+    /// List a mission's robots: state, task, pose, liveness.
+    Robots { mission: u64 },
+    /// List a mission's tasks, newest first.
+    Tasks {
+        mission: u64,
+        /// Only this robot's (id, or name).
+        #[arg(long)]
+        robot: Option<String>,
+        /// Only tasks of this kind.
+        #[arg(long, value_parser = ["explore", "goto", "hold", "home", "pin"])]
+        kind: Option<String>,
+        /// Only tasks that have not ended.
+        #[arg(long)]
+        open: bool,
+        /// At most this many.
+        #[arg(long, default_value_t = 50)]
+        limit: u32,
+        /// Every transition of every task, with who and why.
+        #[arg(long)]
+        history: bool,
+    },
+    /// The mission's events: policy changes, overrides, pauses, lost robots ...
+    Events { mission: u64 },
+    /// Give a robot an operator task, or hand it back to the policy.
+    Override {
+        mission: u64,
+        /// The robot's name or id.
+        robot: String,
+        #[command(subcommand)]
+        action: OverrideAction,
+        /// Why, for the record.
+        #[arg(long, global = true, default_value = "")]
+        reason: String,
+    },
+    /// Forbid a rectangle (metres: x0,y0,x1,y1): no target is assigned inside.
+    Forbid {
+        mission: u64,
+        #[arg(value_parser = parse_rect, allow_hyphen_values = true)]
+        area: pb::Rect,
+        #[arg(long, default_value = "")]
+        reason: String,
+    },
+    /// Lift a forbidden region.
+    Allow {
+        mission: u64,
+        region: u64,
+        #[arg(long, default_value = "")]
+        reason: String,
+    },
+    /// Follow a mission live: one line (or JSON object) per change.
+    Watch {
+        mission: u64,
+        /// Stop after this many views.
+        #[arg(long)]
+        count: Option<usize>,
+    },
+    /// Export the fused map as a PNG: occupancy, frontier, segments, robots,
+    /// targets and forbidden regions.
+    Map {
+        mission: u64,
+        #[arg(long)]
+        png: PathBuf,
+        /// Size of the longer side, pixels.
+        #[arg(long, default_value_t = 1200)]
+        px: u32,
+        /// Tint the segmentation's segments.
+        #[arg(long)]
+        segments: bool,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+enum MissionCommand {
+    /// Everything about one mission.
+    Show { mission: u64 },
+    /// Create a mission over the frame of a map_server YAML, or an explicit frame.
+    Create {
+        #[arg(long, default_value = "mission")]
+        name: String,
+        /// Take the frame (size, resolution, origin) from this map.
+        #[arg(long, conflicts_with_all = ["width", "height"])]
+        map: Option<PathBuf>,
+        #[arg(long, requires = "height")]
+        width: Option<u32>,
+        #[arg(long, requires = "width")]
+        height: Option<u32>,
+        /// Metres per cell (with --map: defaults to the map's).
+        #[arg(long)]
+        resolution: Option<f64>,
+        /// World position of cell (0, 0)'s lower-left corner, x,y.
+        #[arg(long, value_parser = parse_point)]
+        origin: Option<pb::Point>,
+        #[arg(long, default_value = "burgard")]
+        policy: String,
+        /// A policy parameter, name=value; repeat for more.
+        #[arg(long = "param", value_parser = parse_param)]
+        params: Vec<(String, f64)>,
+        /// Seconds without news after which a robot loses its task.
+        #[arg(long)]
+        lease: Option<f64>,
+        /// Seconds without progress after which a task fails.
+        #[arg(long)]
+        stall: Option<f64>,
+        /// Where robots meet when exploration is done, x,y.
+        #[arg(long, value_parser = parse_point)]
+        rendezvous: Option<pb::Point>,
+    },
+    /// Robots hold where they are until resumed.
+    Pause {
+        mission: u64,
+        #[arg(long, default_value = "")]
+        reason: String,
+    },
+    /// Robots get targets again.
+    Resume {
+        mission: u64,
+        #[arg(long, default_value = "")]
+        reason: String,
+    },
+    /// Show the policy, or switch to another one while the mission runs.
+    Policy {
+        mission: u64,
+        name: Option<String>,
+        #[arg(long = "param", value_parser = parse_param)]
+        params: Vec<(String, f64)>,
+        #[arg(long, default_value = "")]
+        reason: String,
+    },
+}
+
+#[derive(Debug, Clone, Subcommand)]
+enum OverrideAction {
+    /// Go to a point x,y (metres); done on arrival.
+    Goto {
+        #[arg(value_parser = parse_point, allow_hyphen_values = true)]
+        point: pb::Point,
+    },
+    /// Explore a rectangle x0,y0,x1,y1; done when no reachable frontier is left inside.
+    Region {
+        #[arg(value_parser = parse_rect, allow_hyphen_values = true)]
+        area: pb::Rect,
+    },
+    /// Explore the frontier at x,y; other robots stay away from it meanwhile.
+    Pin {
+        #[arg(value_parser = parse_point, allow_hyphen_values = true)]
+        point: pb::Point,
+    },
+    /// Stay put until released.
+    Hold,
+    /// Go to its start pose (or the rendezvous).
+    Home,
+    /// End its current task and hand it back to the policy.
+    Release,
+    /// Cancel its override and hand it back to the policy.
+    Cancel,
+}
+
+type Missions = MissionsClient<InterceptedService<Channel, Bearer>>;
+
+#[tokio::main(flavor = "current_thread")]
+async fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            let _ = e.print();
+            return ExitCode::from(if e.use_stderr() { 2 } else { 0 });
+        }
+    };
+    match run(cli).await {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            match e.downcast_ref::<tonic::Status>() {
+                Some(status) => eprintln!("coordctl: {:?}: {}", status.code(), status.message()),
+                None => eprintln!("coordctl: {e:#}"),
+            }
+            ExitCode::from(exit_code(&e))
+        }
+    }
+}
+
+/// Sorts failures into the exit codes the module documents.
+fn exit_code(error: &anyhow::Error) -> u8 {
+    match error.downcast_ref::<tonic::Status>().map(tonic::Status::code) {
+        Some(Code::NotFound) => 3,
+        Some(Code::InvalidArgument | Code::FailedPrecondition | Code::ResourceExhausted | Code::OutOfRange) => 4,
+        Some(Code::Unauthenticated | Code::PermissionDenied) => 5,
+        _ if error.downcast_ref::<Usage>().is_some() => 2,
+        _ => 1,
+    }
+}
+
+/// A mistake in the command line that clap cannot see.
+#[derive(Debug)]
+struct Usage(String);
+
+impl std::fmt::Display for Usage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Usage {}
+
+async fn connect(cli: &Cli) -> anyhow::Result<Missions> {
+    let channel = Endpoint::from_shared(cli.server.clone())
+        .map_err(|e| Usage(format!("--server {}: {e}", cli.server)))?
+        .connect()
+        .await
+        .with_context(|| format!("cannot reach the executive at {}", cli.server))?;
+    let bearer = Bearer::new(cli.token.as_deref()).map_err(|_| Usage("the token holds invalid characters".into()))?;
+    Ok(MissionsClient::with_interceptor(channel, bearer))
+}
+
+async fn run(cli: Cli) -> anyhow::Result<()> {
+    let mut api = connect(&cli).await?;
+    let out = output::Output { json: cli.json };
+    let actor = cli.actor.clone();
+    match cli.command {
+        Command::Missions => {
+            let missions = api.list_missions(pb::ListMissionsRequest {}).await?.into_inner().missions;
+            out.missions(&missions);
+        }
+        Command::Mission(command) => mission_command(&mut api, out, &actor, command).await?,
+        Command::Policies => {
+            let policies = api.list_policies(pb::ListPoliciesRequest {}).await?.into_inner().policies;
+            out.policies(&policies);
+        }
+        Command::Robots { mission } => {
+            let robots = robots(&mut api, mission).await?;
+            out.robots(&robots);
+        }
+        Command::Tasks { mission, robot, kind, open, limit, history } => {
+            let robot_id = match robot {
+                Some(robot) => robot_id(&mut api, mission, &robot).await?,
+                None => 0,
+            };
+            let request = pb::ListTasksRequest {
+                mission_id: mission,
+                robot_id,
+                limit,
+                kind: kind.as_deref().map_or(pb::TaskKind::Unspecified, task_kind) as i32,
+                open_only: open,
+            };
+            let tasks = api.list_tasks(request).await?.into_inner().tasks;
+            let names = robot_names(&mut api, mission).await?;
+            out.tasks(&tasks, &names, history);
+        }
+        Command::Events { mission } => {
+            let events = api.list_events(pb::ListEventsRequest { mission_id: mission }).await?.into_inner().events;
+            out.events(&events);
+        }
+        Command::Override { mission, robot, action, reason } => {
+            let robot_id = robot_id(&mut api, mission, &robot).await?;
+            let action = match action {
+                OverrideAction::Goto { point } => Action::Goto(point),
+                OverrideAction::Region { area } => Action::ExploreRegion(area),
+                OverrideAction::Pin { point } => Action::PinFrontier(point),
+                OverrideAction::Hold => Action::Hold(Hold {}),
+                OverrideAction::Home => Action::Home(Home {}),
+                OverrideAction::Release => Action::Release(Release {}),
+                OverrideAction::Cancel => Action::Cancel(Cancel {}),
+            };
+            let request = pb::OverrideRobotRequest { robot_id, action: Some(action), actor, reason };
+            let robot = api.override_robot(request).await?.into_inner();
+            out.robots(std::slice::from_ref(&robot));
+        }
+        Command::Forbid { mission, area, reason } => {
+            let request = pb::ForbidRegionRequest { mission_id: mission, area: Some(area), actor, reason };
+            let region = api.forbid_region(request).await?.into_inner();
+            out.regions(std::slice::from_ref(&region));
+        }
+        Command::Allow { mission, region, reason } => {
+            let request = pb::AllowRegionRequest { mission_id: mission, region_id: region, actor, reason };
+            let mission = api.allow_region(request).await?.into_inner();
+            out.mission(&mission);
+        }
+        Command::Watch { mission, count } => {
+            let mut views = api.watch_mission(pb::WatchMissionRequest { mission_id: mission }).await?.into_inner();
+            let (mut seen, mut last) = (0, None);
+            while let Some(view) = views.message().await? {
+                // The executive pushes every change, heartbeats included;
+                // show only what changes what an operator sees.
+                let key = view.mission.as_ref().map(|m| {
+                    let robots: Vec<_> = view.robots.iter().map(|r| (r.task_id, r.lost, r.state)).collect();
+                    (m.state, m.frontier_cells, m.replans, m.robots, robots)
+                });
+                if key == last {
+                    continue;
+                }
+                last = key;
+                out.view(&view);
+                seen += 1;
+                if count.is_some_and(|count| seen >= count) {
+                    break;
+                }
+            }
+        }
+        Command::Map { mission, png, px, segments } => {
+            let snapshot = api.get_map(pb::GetMapRequest { mission_id: mission }).await?.into_inner();
+            let details = api.get_mission(pb::GetMissionRequest { mission_id: mission }).await?.into_inner();
+            let labels = if segments {
+                let request = pb::GetSegmentationRequest { mission_id: mission, include_labels: true };
+                Some(api.get_segmentation(request).await?.into_inner().labels)
+            } else {
+                None
+            };
+            let picture = picture::render(&snapshot, &details.forbidden_regions, labels.as_deref(), px)?;
+            picture.save(&png).with_context(|| format!("cannot write {}", png.display()))?;
+            out.done(&format!("wrote {}", png.display()));
+        }
+    }
+    Ok(())
+}
+
+async fn mission_command(
+    api: &mut Missions,
+    out: output::Output,
+    actor: &str,
+    command: MissionCommand,
+) -> anyhow::Result<()> {
+    let actor = actor.to_owned();
+    match command {
+        MissionCommand::Show { mission } => {
+            let mission = api.get_mission(pb::GetMissionRequest { mission_id: mission }).await?.into_inner();
+            out.mission(&mission);
+        }
+        MissionCommand::Create {
+            name,
+            map,
+            width,
+            height,
+            resolution,
+            origin,
+            policy,
+            params,
+            lease,
+            stall,
+            rendezvous,
+        } => {
+            let frame = match (map, width, height) {
+                (Some(map), _, _) => frame_of_map(&map, resolution, origin)?,
+                (None, Some(width), Some(height)) => pb::MapFrame {
+                    resolution: resolution.unwrap_or(0.05),
+                    origin: Some(origin.unwrap_or_default()),
+                    width,
+                    height,
+                },
+                _ => bail!(Usage("give --map, or --width and --height".into())),
+            };
+            let request = pb::CreateMissionRequest {
+                name,
+                frame: Some(frame),
+                policy: Some(pb::PolicySpec { name: policy, params: params.into_iter().collect() }),
+                lifecycle: Some(pb::LifecycleSettings {
+                    lease_s: lease.unwrap_or(0.0),
+                    stall_s: stall.unwrap_or(0.0),
+                    rendezvous,
+                }),
+                ..Default::default()
+            };
+            let mission = api.create_mission(request).await?.into_inner();
+            out.mission(&mission);
+        }
+        MissionCommand::Pause { mission, reason } => {
+            let request = pb::MissionControlRequest { mission_id: mission, actor, reason };
+            out.mission(&api.pause_mission(request).await?.into_inner());
+        }
+        MissionCommand::Resume { mission, reason } => {
+            let request = pb::MissionControlRequest { mission_id: mission, actor, reason };
+            out.mission(&api.resume_mission(request).await?.into_inner());
+        }
+        MissionCommand::Policy { mission, name, params, reason } => {
+            let mission = match name {
+                Some(name) => {
+                    let policy = pb::PolicySpec { name, params: params.into_iter().collect() };
+                    let request = pb::SetPolicyRequest { mission_id: mission, policy: Some(policy), actor, reason };
+                    api.set_policy(request).await?.into_inner()
+                }
+                None if params.is_empty() => {
+                    api.get_mission(pb::GetMissionRequest { mission_id: mission }).await?.into_inner()
+                }
+                None => bail!(Usage("--param needs the policy's name".into())),
+            };
+            out.policy(&mission);
+        }
+    }
+    Ok(())
+}
+
+/// The frame of a map_server map: its image's size at its resolution, or
+/// coarser cells covering the same area.
+fn frame_of_map(
+    map: &std::path::Path,
+    resolution: Option<f64>,
+    origin: Option<pb::Point>,
+) -> anyhow::Result<pb::MapFrame> {
+    let description = client_sim::world::MapDescription::load(map)?;
+    let (pixels_x, pixels_y) = image::image_dimensions(&description.image)
+        .with_context(|| format!("cannot read {}", description.image.display()))?;
+    let resolution = resolution.unwrap_or(description.resolution);
+    let cells = |pixels: u32| ((f64::from(pixels) * description.resolution / resolution).ceil() as u32).max(1);
+    Ok(pb::MapFrame {
+        resolution,
+        origin: Some(origin.unwrap_or(pb::Point { x: description.origin.x, y: description.origin.y })),
+        width: cells(pixels_x),
+        height: cells(pixels_y),
+    })
+}
+
+async fn robots(api: &mut Missions, mission: u64) -> anyhow::Result<Vec<pb::Robot>> {
+    Ok(api.list_robots(pb::ListRobotsRequest { mission_id: mission }).await?.into_inner().robots)
+}
+
+async fn robot_names(api: &mut Missions, mission: u64) -> anyhow::Result<HashMap<u64, String>> {
+    Ok(robots(api, mission).await?.into_iter().map(|r| (r.id, r.name)).collect())
+}
+
+/// A robot named by id or by name within `mission`.
+async fn robot_id(api: &mut Missions, mission: u64, robot: &str) -> anyhow::Result<u64> {
+    let robots = robots(api, mission).await?;
+    if let Some(found) = robots.iter().find(|r| r.name == robot) {
+        return Ok(found.id);
+    }
+    match robot.parse::<u64>() {
+        Ok(id) if robots.iter().any(|r| r.id == id) => Ok(id),
+        _ => {
+            let known: Vec<&str> = robots.iter().map(|r| r.name.as_str()).collect();
+            Err(anyhow!(tonic::Status::not_found(format!(
+                "mission {mission} has no robot `{robot}` (its robots: {})",
+                if known.is_empty() { "none".to_owned() } else { known.join(", ") }
+            ))))
+        }
+    }
+}
+
+fn task_kind(name: &str) -> pb::TaskKind {
+    match name {
+        "explore" => pb::TaskKind::Explore,
+        "goto" => pb::TaskKind::Goto,
+        "hold" => pb::TaskKind::Hold,
+        "home" => pb::TaskKind::Home,
+        "pin" => pb::TaskKind::Pin,
+        _ => pb::TaskKind::Unspecified,
+    }
+}
+
+fn numbers<const N: usize>(text: &str, what: &str) -> Result<[f64; N], String> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|part| part.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("`{text}` is not {what}"))?;
+    values.try_into().map_err(|_| format!("`{text}` is not {what}"))
+}
+
+fn parse_point(text: &str) -> Result<pb::Point, String> {
+    let [x, y] = numbers::<2>(text, "x,y in metres")?;
+    Ok(pb::Point { x, y })
+}
+
+fn parse_rect(text: &str) -> Result<pb::Rect, String> {
+    let [x0, y0, x1, y1] = numbers::<4>(text, "x0,y0,x1,y1 in metres")?;
+    Ok(pb::Rect { min_x: x0.min(x1), min_y: y0.min(y1), max_x: x0.max(x1), max_y: y0.max(y1) })
+}
+
+fn parse_param(text: &str) -> Result<(String, f64), String> {
+    let (name, value) = text.split_once('=').ok_or_else(|| format!("`{text}` is not name=value"))?;
+    let value = value.trim().parse().map_err(|_| format!("`{value}` in `{text}` is not a number"))?;
+    Ok((name.trim().to_owned(), value))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn points_and_rectangles_parse_and_rectangles_are_normalized() {
+        let p = parse_point("1.5,-2").unwrap();
+        assert_eq!((p.x, p.y), (1.5, -2.0));
+        let r = parse_rect("4,3,1,-1").unwrap();
+        assert_eq!((r.min_x, r.min_y, r.max_x, r.max_y), (1.0, -1.0, 4.0, 3.0));
+        assert!(parse_point("1,2,3").is_err());
+        assert!(parse_rect("a,b,c,d").is_err());
+        assert_eq!(parse_param("beta=2").unwrap(), ("beta".into(), 2.0));
+        assert!(parse_param("beta").is_err());
+    }
+
+    #[test]
+    fn statuses_map_to_documented_exit_codes() {
+        let code = |status: tonic::Status| exit_code(&anyhow::Error::new(status));
+        assert_eq!(code(tonic::Status::not_found("x")), 3);
+        assert_eq!(code(tonic::Status::failed_precondition("x")), 4);
+        assert_eq!(code(tonic::Status::permission_denied("x")), 5);
+        assert_eq!(code(tonic::Status::unauthenticated("x")), 5);
+        assert_eq!(code(tonic::Status::internal("x")), 1);
+        assert_eq!(exit_code(&anyhow::Error::new(Usage("x".into()))), 2);
+    }
+
+    #[test]
+    fn the_command_line_is_consistent() {
+        use clap::CommandFactory;
+        Cli::command().debug_assert();
+    }
+}

@@ -1,0 +1,155 @@
+//! `coordctl` as an operator runs it, against a real executive on port 0
+//! with a real SQLite file and an operator token.
+
+use std::process::Output;
+
+use serde_json::Value;
+use tokio_util::sync::CancellationToken;
+
+use exploration_proto::Bearer;
+use exploration_proto::v1 as pb;
+use exploration_proto::v1::fleet_client::FleetClient;
+
+const TOKEN: &str = "ops-token";
+
+/// Runs coordctl with `args` against `url` (with the operator token unless
+/// `token` says otherwise), off the async runtime.
+async fn coordctl(url: &str, token: Option<&str>, args: &[&str]) -> Output {
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_coordctl"));
+    command.env_remove("COORDINATOR_TOKEN").env("COORDINATOR_URL", url).arg("--as").arg("alice").args(args);
+    if let Some(token) = token {
+        command.env("COORDINATOR_TOKEN", token);
+    }
+    tokio::task::spawn_blocking(move || command.output().unwrap()).await.unwrap()
+}
+
+fn json(output: &Output) -> Value {
+    assert!(output.status.success(), "coordctl failed: {}", String::from_utf8_lossy(&output.stderr));
+    serde_json::from_slice(&output.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&output.stdout)))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_operator_lists_overrides_forbids_and_exports_the_map() {
+    let dir = tempfile::tempdir().unwrap();
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let url = format!("http://{}", listener.local_addr().unwrap());
+    let mut config = coordinator::Config::new(dir.path().join("ctl.db"));
+    config.operator_token = Some(TOKEN.into());
+    let stop = CancellationToken::new();
+    let server = tokio::spawn(coordinator::run(listener, stop.clone().cancelled_owned(), config));
+
+    // An operator creates the mission; a robot joins and maps a room.
+    let created = json(
+        &coordctl(
+            &url,
+            Some(TOKEN),
+            &[
+                "--json",
+                "mission",
+                "create",
+                "--width",
+                "60",
+                "--height",
+                "20",
+                "--resolution",
+                "0.1",
+                "--policy",
+                "nearest",
+            ],
+        )
+        .await,
+    );
+    assert_eq!(created["policy"]["name"], "nearest");
+    let mission_id = created["id"].as_u64().unwrap();
+    let channel = tonic::transport::Endpoint::from_shared(url.clone()).unwrap().connect().await.unwrap();
+    let mut fleet = FleetClient::with_interceptor(channel, Bearer::new(Some(TOKEN)).unwrap());
+    let robot = fleet
+        .register_robot(pb::RegisterRobotRequest {
+            mission_id,
+            name: "scout".into(),
+            capabilities: Some(pb::RobotCapabilities {
+                sensor_range_m: 2.0,
+                field_of_view_rad: std::f64::consts::TAU,
+                speed_mps: 0.5,
+                footprint_radius_m: 0.0,
+            }),
+            pose: Some(pb::Pose { x: 3.0, y: 1.0, theta: 0.0 }),
+        })
+        .await
+        .unwrap()
+        .into_inner()
+        .robot
+        .unwrap();
+    let patch = pb::MapPatch {
+        x: 20,
+        y: 0,
+        width: 20,
+        height: 20,
+        encoding: pb::CellEncoding::Probability as i32,
+        values: vec![0.05; 400],
+        unknown: vec![],
+    };
+    let update = pb::UpdateMapRequest {
+        robot_id: robot.id,
+        seq: 1,
+        pose: Some(pb::Pose { x: 3.0, y: 1.0, theta: 0.0 }),
+        patches: vec![patch],
+        ..Default::default()
+    };
+    fleet.update_map(update).await.unwrap();
+    let mission = mission_id.to_string();
+
+    let robots = json(&coordctl(&url, Some(TOKEN), &["--json", "robots", &mission]).await);
+    assert_eq!(robots[0]["name"], "scout");
+    assert_eq!(robots[0]["task_kind"], "explore");
+
+    // Send it somewhere by name, with a reason; the history shows who and why.
+    let moved = json(
+        &coordctl(
+            &url,
+            Some(TOKEN),
+            &["--json", "override", &mission, "scout", "goto", "3.5,1.5", "--reason", "look at the door"],
+        )
+        .await,
+    );
+    assert_eq!(moved[0]["task_kind"], "goto");
+    let tasks =
+        json(&coordctl(&url, Some(TOKEN), &["--json", "tasks", &mission, "--robot", "scout", "--history"]).await);
+    assert_eq!(tasks[0]["kind"], "goto");
+    assert_eq!(tasks[0]["created_by"], "operator:alice");
+    assert_eq!(tasks[0]["note"], "look at the door");
+    assert_eq!(tasks[1]["state"], "overridden");
+    assert_eq!(tasks[1]["transitions"].as_array().unwrap().last().unwrap()["by"], "alice");
+    let released = json(&coordctl(&url, Some(TOKEN), &["--json", "override", &mission, "scout", "release"]).await);
+    assert_eq!(released[0]["task_kind"], "explore");
+
+    // A forbidden region shows in the mission and in the exported map.
+    let region =
+        json(&coordctl(&url, Some(TOKEN), &["--json", "forbid", &mission, "-1,0,2.5,2", "--reason", "wet"]).await);
+    assert_eq!(region[0]["area"]["min_x"], -1.0);
+    let shown = json(&coordctl(&url, Some(TOKEN), &["--json", "mission", "show", &mission]).await);
+    assert_eq!(shown["forbidden_regions"].as_array().unwrap().len(), 1);
+    let png = dir.path().join("map.png");
+    let wrote = coordctl(&url, Some(TOKEN), &["map", &mission, "--png", png.to_str().unwrap(), "--px", "600"]).await;
+    assert!(wrote.status.success(), "{}", String::from_utf8_lossy(&wrote.stderr));
+    let picture = image::open(&png).unwrap().to_rgb8();
+    assert_eq!((picture.width(), picture.height()), (600, 200), "10 pixels per cell");
+    let red = picture.pixels().filter(|p| p.0 == [220, 0, 0]).count();
+    assert!(red > 100, "the forbidden region is outlined: {red} red pixels");
+
+    // Refusals carry the server's reason and a documented exit code.
+    let unknown = coordctl(&url, Some(TOKEN), &["override", &mission, "nobody", "hold"]).await;
+    assert_eq!(unknown.status.code(), Some(3));
+    assert!(String::from_utf8_lossy(&unknown.stderr).contains("no robot `nobody`"));
+    let anonymous = coordctl(&url, None, &["robots", &mission]).await;
+    assert_eq!(anonymous.status.code(), Some(5));
+    assert!(String::from_utf8_lossy(&anonymous.stderr).contains("bearer token"));
+    assert_eq!(coordctl(&url, Some(TOKEN), &["mission", "pause", &mission]).await.status.code(), Some(0));
+    let twice = coordctl(&url, Some(TOKEN), &["mission", "pause", &mission]).await;
+    assert_eq!(twice.status.code(), Some(4), "{}", String::from_utf8_lossy(&twice.stderr));
+    assert_eq!(coordctl(&url, Some(TOKEN), &["override", &mission, "scout", "goto", "1"]).await.status.code(), Some(2));
+
+    stop.cancel();
+    server.await.unwrap().unwrap();
+}

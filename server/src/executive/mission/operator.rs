@@ -1,0 +1,295 @@
+//! Operators stepping in (Simmons et al. 2000, §4.2): "the user can
+//! designate specific robots to go to specific locations; the executive
+//! then plans for the remaining robots, taking into account the
+//! assignments", and hands the robot back to the pool when it is done. Also
+//! forbidden regions and pausing.
+
+use std::sync::atomic::AtomicU64;
+
+use exploration::grid::CellClass;
+use exploration::math::Point2;
+
+use super::{Mission, TaskDraft, transition};
+use crate::domain::{Actor, OperatorNote, Override, Region, RobotId, TaskKind, TaskRecord, TaskState, Timestamp};
+use crate::error::Error;
+use crate::store::Changeset;
+
+/// How far from the point an operator gives a frontier to pin may lie, metres.
+const PIN_RADIUS_M: f64 = 1.0;
+
+impl Mission {
+    /// Describes an override of a robot's task.
+    pub(crate) fn prepare_override(
+        &self,
+        robot_id: RobotId,
+        action: Override,
+        note: &OperatorNote,
+        now: Timestamp,
+        task_ids: &AtomicU64,
+    ) -> Result<Changeset, Error> {
+        let robot = self.robot(robot_id)?;
+        let current = robot.current_task.and_then(|t| self.open_tasks.get(&t));
+        let said = |what: String| if note.reason.is_empty() { what } else { format!("{what}: {}", note.reason) };
+        let mut changes = Changeset { at: Some(now), ..Changeset::default() };
+        let mut next = robot.clone();
+        next.assignment_version += 1;
+        let detail;
+        match action {
+            Override::Release | Override::Cancel => {
+                let (state, verb) = if action == Override::Release {
+                    let Some(task) = current else {
+                        return Err(Error::FailedPrecondition(format!(
+                            "robot {robot_id} has no task to release; `coordctl robots` shows what each robot does"
+                        )));
+                    };
+                    (TaskState::Released, format!("released from task {}", task.id))
+                } else {
+                    match current {
+                        Some(task) if task.is_override() => {
+                            (TaskState::Cancelled, format!("override {} ({}) cancelled", task.id, task.kind.as_str()))
+                        }
+                        Some(task) => {
+                            return Err(Error::FailedPrecondition(format!(
+                                "robot {robot_id} is on {} task {} chosen by the {}, not on an override; use \
+                                 `release` to take the task off it",
+                                task.kind.as_str(),
+                                task.id,
+                                task.created_by
+                            )));
+                        }
+                        None => {
+                            return Err(Error::FailedPrecondition(format!(
+                                "robot {robot_id} has no override to cancel"
+                            )));
+                        }
+                    }
+                };
+                let task = current.expect("checked above");
+                let cause = said(format!("operator {}: {verb}", note.actor));
+                changes.task_changes.push(operator_transition(task, state, &cause, &note.actor, now));
+                next.current_task = None;
+                detail = format!("robot {robot_id}: {verb}");
+            }
+            Override::Goto(_)
+            | Override::ExploreRegion(..)
+            | Override::Hold
+            | Override::Home
+            | Override::PinFrontier(_) => {
+                if robot.lost {
+                    return Err(Error::FailedPrecondition(format!(
+                        "robot {robot_id} is lost (its lease ran out); it rejoins when it reports again, override it then"
+                    )));
+                }
+                let draft = self.override_draft(robot, action, note)?;
+                detail =
+                    format!("robot {robot_id}: {} ({:.2}, {:.2})", draft.kind.as_str(), draft.target.x, draft.target.y);
+                if let Some(task) = current {
+                    let cause = said(format!("operator {}: {}", note.actor, detail));
+                    changes.task_changes.push(operator_transition(
+                        task,
+                        TaskState::Overridden,
+                        &cause,
+                        &note.actor,
+                        now,
+                    ));
+                }
+                let cause = said(format!("operator {}", note.actor));
+                let task = self.open_task(robot_id, draft, &cause, Actor::Operator, &note.actor, now, task_ids);
+                next.current_task = Some(task.id);
+                changes.new_tasks.push(task);
+            }
+        }
+        changes.robots.push(next);
+        changes.events.push(self.event("override", said(detail), &note.actor, now));
+        Ok(changes)
+    }
+
+    /// The task an override creates, checked against the map.
+    fn override_draft(
+        &self,
+        robot: &crate::domain::RobotRecord,
+        action: Override,
+        note: &OperatorNote,
+    ) -> Result<TaskDraft, Error> {
+        let frame = &self.record.spec.frame;
+        let inside = |p: Point2, what: &str| {
+            frame.cell_from_world(&p).ok_or_else(|| {
+                Error::InvalidArgument(format!(
+                    "{what} ({:.2}, {:.2}) lies outside the mission map, which spans x {:.2}..{:.2}, y {:.2}..{:.2}",
+                    p.x,
+                    p.y,
+                    frame.origin.x,
+                    frame.origin.x + f64::from(frame.width) * frame.resolution,
+                    frame.origin.y,
+                    frame.origin.y + f64::from(frame.height) * frame.resolution
+                ))
+            })
+        };
+        let draft = |kind: TaskKind, target: Point2| TaskDraft {
+            kind,
+            target,
+            created_by: format!("operator:{}", note.actor),
+            note: note.reason.clone(),
+            policy: "operator".to_owned(),
+            utility: 0.0,
+            path_cost: 0.0,
+            gain_region: None,
+        };
+        Ok(match action {
+            Override::Goto(p) => {
+                let cell = inside(p, "target")?;
+                if self.fusion.grid().class(cell) == CellClass::Occupied {
+                    return Err(Error::FailedPrecondition(format!(
+                        "({:.2}, {:.2}) is an obstacle in the fused map; pick a free or unknown point \
+                         (`coordctl map export` draws the map)",
+                        p.x, p.y
+                    )));
+                }
+                draft(TaskKind::Goto, frame.world_from_cell(cell))
+            }
+            Override::ExploreRegion(min, max) => {
+                let region = self.cell_rect(min, max).ok_or_else(|| {
+                    Error::InvalidArgument(format!(
+                        "region ({:.2}, {:.2})..({:.2}, {:.2}) does not overlap the mission map",
+                        min.x, min.y, max.x, max.y
+                    ))
+                })?;
+                // Heads for the centre until the next replanning picks the region's nearest frontier.
+                let centre = exploration::grid::Cell::new(
+                    region.x + region.width as i32 / 2,
+                    region.y + region.height as i32 / 2,
+                );
+                TaskDraft { gain_region: Some(region), ..draft(TaskKind::Goto, frame.world_from_cell(centre)) }
+            }
+            Override::Hold => draft(TaskKind::Hold, robot.pose.position),
+            Override::Home => draft(TaskKind::Home, self.record.spec.lifecycle.rendezvous.unwrap_or(robot.home)),
+            Override::PinFrontier(p) => {
+                let at = inside(p, "frontier")?;
+                let radius = (PIN_RADIUS_M / frame.resolution).ceil() as i32;
+                let nearest = self
+                    .frontier
+                    .cells()
+                    .into_iter()
+                    .filter(|c| (c.x - at.x).abs() <= radius && (c.y - at.y).abs() <= radius)
+                    .min_by_key(|c| (c.distance_squared(at), *c))
+                    .ok_or_else(|| {
+                        Error::FailedPrecondition(format!(
+                            "no frontier within {PIN_RADIUS_M} m of ({:.2}, {:.2}); `coordctl map export` draws \
+                             the frontier",
+                            p.x, p.y
+                        ))
+                    })?;
+                if let Some(other) = self.open_tasks.values().find(|t| {
+                    t.kind == TaskKind::Pin
+                        && t.robot_id != robot.id
+                        && frame.cell_from_world(&t.target) == Some(nearest)
+                }) {
+                    return Err(Error::FailedPrecondition(format!(
+                        "that frontier is already pinned to robot {} (task {})",
+                        other.robot_id, other.id
+                    )));
+                }
+                draft(TaskKind::Pin, frame.world_from_cell(nearest))
+            }
+            Override::Release | Override::Cancel => unreachable!("handled by prepare_override"),
+        })
+    }
+
+    /// Describes pausing (`pause`) or resuming the mission.
+    pub(crate) fn prepare_pause(&self, pause: bool, note: &OperatorNote, now: Timestamp) -> Result<Changeset, Error> {
+        let id = self.record.id;
+        if pause == self.record.paused {
+            return Err(Error::FailedPrecondition(if pause {
+                format!("mission {id} is already paused")
+            } else {
+                format!("mission {id} is not paused")
+            }));
+        }
+        let mut counters = self.counters();
+        counters.paused = pause;
+        let kind = if pause { "paused" } else { "resumed" };
+        let detail = if note.reason.is_empty() { kind.to_owned() } else { format!("{kind}: {}", note.reason) };
+        Ok(Changeset {
+            mission: Some(counters),
+            // Every assignment carries the paused flag: push it.
+            robots: self
+                .robots
+                .values()
+                .map(|s| {
+                    let mut next = s.record.clone();
+                    next.assignment_version += 1;
+                    next
+                })
+                .collect(),
+            events: vec![self.event(&format!("mission_{kind}"), detail, &note.actor, now)],
+            at: Some(now),
+            ..Changeset::default()
+        })
+    }
+
+    /// Describes forbidding a region; `id` is its new identity.
+    pub(crate) fn prepare_forbid(
+        &self,
+        id: u64,
+        min: Point2,
+        max: Point2,
+        note: &OperatorNote,
+        now: Timestamp,
+    ) -> Result<(Changeset, Region), Error> {
+        if self.cell_rect(min, max).is_none() {
+            return Err(Error::InvalidArgument(format!(
+                "region ({:.2}, {:.2})..({:.2}, {:.2}) does not overlap the mission map",
+                min.x, min.y, max.x, max.y
+            )));
+        }
+        let region = Region {
+            id,
+            mission_id: self.record.id,
+            min,
+            max,
+            actor: note.actor.clone(),
+            reason: note.reason.clone(),
+            created_at: now,
+        };
+        let detail = format!("region {id} ({:.2}, {:.2})..({:.2}, {:.2}) {}", min.x, min.y, max.x, max.y, note.reason);
+        let changes = Changeset {
+            forbidden: vec![region.clone()],
+            events: vec![self.event("region_forbidden", detail.trim_end().to_owned(), &note.actor, now)],
+            at: Some(now),
+            ..Changeset::default()
+        };
+        Ok((changes, region))
+    }
+
+    /// Describes allowing a forbidden region again.
+    pub(crate) fn prepare_allow(&self, id: u64, note: &OperatorNote, now: Timestamp) -> Result<Changeset, Error> {
+        if !self.forbidden.iter().any(|r| r.id == id) {
+            let known: Vec<String> = self.forbidden.iter().map(|r| r.id.to_string()).collect();
+            return Err(Error::NotFound(format!(
+                "mission {} has no forbidden region {id}; its forbidden regions are [{}]",
+                self.record.id,
+                known.join(", ")
+            )));
+        }
+        let detail =
+            if note.reason.is_empty() { format!("region {id}") } else { format!("region {id}: {}", note.reason) };
+        Ok(Changeset {
+            allowed: vec![id],
+            events: vec![self.event("region_allowed", detail, &note.actor, now)],
+            at: Some(now),
+            ..Changeset::default()
+        })
+    }
+}
+
+fn operator_transition(
+    task: &TaskRecord,
+    to: TaskState,
+    cause: &str,
+    by: &str,
+    at: Timestamp,
+) -> crate::store::TaskChange {
+    let mut change = transition(task, to, cause, Actor::Operator, at);
+    change.transition.by = by.to_owned();
+    change
+}

@@ -1,0 +1,460 @@
+//! Operating a fleet through a real executive (port 0, SQLite file, bearer
+//! tokens): leases and stalls, blacklists, completion with its leftovers and
+//! the return home, every operator override, forbidden regions, pause and
+//! resume, and the permission checks.
+//!
+//! Time is the executive's manual clock, moved on by hand: no test sleeps
+//! through a lease. Waiting for the executive's reaction follows its
+//! WatchMission stream.
+
+mod common;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use tonic::Code;
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::Channel;
+
+use common::{TestExecutive, patch};
+use coordinator::{Clock, ManualClock};
+use exploration_proto::Bearer;
+use exploration_proto::v1 as pb;
+use exploration_proto::v1::fleet_client::FleetClient;
+use exploration_proto::v1::missions_client::MissionsClient;
+use exploration_proto::v1::override_robot_request::{Action, Cancel, Hold, Release};
+
+const OPERATOR: &str = "operator-secret";
+
+type Missions = MissionsClient<InterceptedService<Channel, Bearer>>;
+type Fleet = FleetClient<InterceptedService<Channel, Bearer>>;
+
+/// An executive that requires tokens and keeps time by hand.
+struct Site {
+    exec: TestExecutive,
+    clock: Arc<ManualClock>,
+    _dir: tempfile::TempDir,
+}
+
+impl Site {
+    async fn start() -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let (clock, handle) = Clock::manual();
+        let mut config = coordinator::Config::new(dir.path().join("ops.db"));
+        config.operator_token = Some(OPERATOR.into());
+        config.executive.clock = clock;
+        Self { exec: TestExecutive::start_with(config).await, clock: handle, _dir: dir }
+    }
+
+    fn missions(&self, token: Option<&str>) -> Missions {
+        MissionsClient::with_interceptor(self.exec.channel(), Bearer::new(token).unwrap())
+    }
+
+    fn fleet(&self, token: Option<&str>) -> Fleet {
+        FleetClient::with_interceptor(self.exec.channel(), Bearer::new(token).unwrap())
+    }
+
+    fn operator(&self) -> Missions {
+        self.missions(Some(OPERATOR))
+    }
+
+    /// A 6 m × 2 m mission (0.1 m cells) for `policy` with the given lease
+    /// and stall times.
+    async fn mission(&self, policy: &str, lease_s: f64, stall_s: f64) -> pb::Mission {
+        let request = pb::CreateMissionRequest {
+            name: "ops".into(),
+            frame: Some(common::frame(60, 20)),
+            policy: Some(pb::PolicySpec { name: policy.into(), params: Default::default() }),
+            lifecycle: Some(pb::LifecycleSettings { lease_s, stall_s, rendezvous: None }),
+            ..Default::default()
+        };
+        self.operator().create_mission(request).await.unwrap().into_inner()
+    }
+
+    /// Registers a robot at (x, y) with the operator's token; returns it and
+    /// a client that speaks with the robot's own token.
+    async fn robot(&self, mission_id: u64, name: &str, x: f64, y: f64) -> (pb::Robot, Fleet) {
+        let request = pb::RegisterRobotRequest {
+            mission_id,
+            name: name.into(),
+            capabilities: Some(pb::RobotCapabilities {
+                sensor_range_m: 2.0,
+                field_of_view_rad: std::f64::consts::TAU,
+                speed_mps: 0.5,
+                footprint_radius_m: 0.0,
+            }),
+            pose: Some(pb::Pose { x, y, theta: 0.0 }),
+        };
+        let response = self.fleet(Some(OPERATOR)).register_robot(request).await.unwrap().into_inner();
+        assert!(response.token.starts_with("rbt_"), "a robot token is issued: {:?}", response.token);
+        (response.robot.unwrap(), self.fleet(Some(&response.token)))
+    }
+
+    /// Waits (at most 20 s of real time) for a view of the mission that
+    /// satisfies `done`, and returns it.
+    async fn until(&self, mission_id: u64, what: &str, done: impl Fn(&pb::MissionView) -> bool) -> pb::MissionView {
+        let mut views =
+            self.operator().watch_mission(pb::WatchMissionRequest { mission_id }).await.unwrap().into_inner();
+        let wait = async {
+            let mut last = None;
+            loop {
+                match views.message().await {
+                    Ok(Some(view)) if done(&view) => return view,
+                    Ok(Some(view)) => last = Some(view),
+                    other => panic!("the watch ended before {what}: {other:?}; last view {last:#?}"),
+                }
+            }
+        };
+        tokio::time::timeout(Duration::from_secs(20), wait)
+            .await
+            .unwrap_or_else(|_| panic!("the executive never showed {what}"))
+    }
+
+    async fn tasks(&self, mission_id: u64, robot_id: u64) -> Vec<pb::Task> {
+        let request = pb::ListTasksRequest { mission_id, robot_id, ..Default::default() };
+        self.operator().list_tasks(request).await.unwrap().into_inner().tasks
+    }
+
+    async fn events(&self, mission_id: u64) -> Vec<pb::MissionEvent> {
+        self.operator().list_events(pb::ListEventsRequest { mission_id }).await.unwrap().into_inner().events
+    }
+}
+
+/// The free band x ∈ [2, 4) m of the 6 × 2 m mission: two frontiers, at
+/// x = 2 m and at x = 4 m.
+fn middle_known(robot_id: u64, seq: u64, x: f64, y: f64) -> pb::UpdateMapRequest {
+    common::update(robot_id, seq, x, y, vec![patch(20, 0, 20, 20, 0.05)])
+}
+
+fn heartbeat(robot_id: u64, x: f64, y: f64, state: pb::RobotState, task_id: u64) -> pb::HeartbeatRequest {
+    pb::HeartbeatRequest {
+        robot_id,
+        pose: Some(pb::Pose { x, y, theta: 0.0 }),
+        state: state as i32,
+        task_id,
+        ..Default::default()
+    }
+}
+
+fn robot(view: &pb::MissionView, id: u64) -> &pb::Robot {
+    view.robots.iter().find(|r| r.id == id).expect("the robot is in the view")
+}
+
+fn target_x(robot: &pb::Robot) -> f64 {
+    robot.target.expect("the robot has a target").x
+}
+
+#[tokio::test]
+async fn a_silent_robot_loses_its_task_and_comes_back_when_it_reports() {
+    let site = Site::start().await;
+    let mission = site.mission("nearest", 10.0, 1000.0).await;
+    let (a, mut fleet_a) = site.robot(mission.id, "a", 2.5, 1.0).await;
+    let (b, mut fleet_b) = site.robot(mission.id, "b", 3.5, 1.0).await;
+    fleet_a.update_map(middle_known(a.id, 1, 2.5, 1.0)).await.unwrap();
+    let view = site.until(mission.id, "both robots assigned", |v| v.robots.iter().all(|r| r.task_id != 0)).await;
+    let task_of_a = robot(&view, a.id).task_id;
+
+    // b keeps reporting; a falls silent past the 10 s lease.
+    site.clock.advance(Duration::from_secs(6));
+    fleet_b.heartbeat(heartbeat(b.id, 3.5, 1.0, pb::RobotState::Moving, 0)).await.unwrap();
+    site.clock.advance(Duration::from_secs(6));
+    let view = site.until(mission.id, "robot a lost", |v| robot(v, a.id).lost).await;
+    assert_eq!(robot(&view, a.id).task_id, 0, "a lost robot keeps no task");
+    assert!(!robot(&view, b.id).lost, "a robot that reported within its lease is not lost");
+
+    let released = site.tasks(mission.id, a.id).await.into_iter().find(|t| t.id == task_of_a).unwrap();
+    assert_eq!(released.state(), pb::TaskState::Released);
+    let last = released.transitions.last().unwrap();
+    assert_eq!(last.actor, "lease");
+    assert!(last.cause.contains("lease 10 s"), "{}", last.cause);
+    assert!(site.events(mission.id).await.iter().any(|e| e.kind == "robot_lost" && e.detail.contains("robot 1")));
+    // Its lost state is kept in the store and survives the listing.
+    let listed = site.operator().list_robots(pb::ListRobotsRequest { mission_id: mission.id }).await.unwrap();
+    assert!(listed.into_inner().robots.iter().any(|r| r.id == a.id && r.lost));
+
+    // A report brings it back into the pool, and it gets work again.
+    fleet_a.heartbeat(heartbeat(a.id, 2.5, 1.0, pb::RobotState::Idle, 0)).await.unwrap();
+    let view =
+        site.until(mission.id, "robot a back at work", |v| !robot(v, a.id).lost && robot(v, a.id).task_id != 0).await;
+    assert_ne!(robot(&view, a.id).task_id, task_of_a, "a rejoining robot gets a new task");
+}
+
+#[tokio::test]
+async fn a_robot_that_makes_no_progress_fails_its_task_and_the_target_is_blacklisted_until_the_map_changes() {
+    let site = Site::start().await;
+    let mission = site.mission("nearest", 1000.0, 5.0).await;
+    let (a, mut fleet_a) = site.robot(mission.id, "a", 2.6, 1.0).await;
+    fleet_a.update_map(middle_known(a.id, 1, 2.6, 1.0)).await.unwrap();
+    let view = site.until(mission.id, "a assigned", |v| robot(v, a.id).task_id != 0).await;
+    let stuck = robot(&view, a.id).clone();
+    assert!(target_x(&stuck) < 2.5, "nearest sends a to the left frontier first: {:?}", stuck.target);
+
+    // It reports, but never gets closer.
+    fleet_a.heartbeat(heartbeat(a.id, 2.6, 1.0, pb::RobotState::Moving, stuck.task_id)).await.unwrap();
+    site.clock.advance(Duration::from_secs(3));
+    fleet_a.heartbeat(heartbeat(a.id, 2.6, 1.0, pb::RobotState::Moving, stuck.task_id)).await.unwrap();
+    site.clock.advance(Duration::from_secs(3));
+    fleet_a.heartbeat(heartbeat(a.id, 2.6, 1.0, pb::RobotState::Moving, stuck.task_id)).await.unwrap();
+    let view = site
+        .until(mission.id, "the stalled task failed", |v| {
+            robot(v, a.id).blacklisted == 1 && robot(v, a.id).task_id != stuck.task_id && robot(v, a.id).task_id != 0
+        })
+        .await;
+    // The blacklist covers the target's neighbourhood (0.5 m), not the
+    // whole frontier.
+    let (old, new) = (stuck.target.unwrap(), robot(&view, a.id).target.unwrap());
+    assert!(((old.x - new.x).powi(2) + (old.y - new.y).powi(2)).sqrt() > 0.5, "{old:?} blacklisted, yet {new:?}");
+    let failed = site.tasks(mission.id, a.id).await.into_iter().find(|t| t.id == stuck.task_id).unwrap();
+    assert_eq!(failed.state(), pb::TaskState::Failed);
+    assert!(failed.transitions.last().unwrap().cause.contains("no progress"), "{:?}", failed.transitions);
+
+    // More of the map around the blacklisted target becomes known: the entry
+    // expires, and the left side may be chosen again.
+    fleet_a.update_map(common::update(a.id, 2, 2.6, 1.0, vec![patch(14, 0, 6, 20, 0.05)])).await.unwrap();
+    site.until(mission.id, "the blacklist entry expired", |v| robot(v, a.id).blacklisted == 0).await;
+}
+
+#[tokio::test]
+async fn completion_names_what_was_left_and_sends_robots_home() {
+    let site = Site::start().await;
+    let mission = site.mission("nearest", 10.0, 1000.0).await;
+    let (a, mut fleet_a) = site.robot(mission.id, "a", 2.5, 0.5).await;
+    fleet_a.update_map(middle_known(a.id, 1, 2.5, 0.5)).await.unwrap();
+    site.until(mission.id, "a assigned", |v| robot(v, a.id).task_id != 0).await;
+    // The robot drives to the middle; then both frontiers are forbidden.
+    fleet_a.heartbeat(heartbeat(a.id, 3.0, 1.5, pb::RobotState::Moving, 0)).await.unwrap();
+    let mut operator = site.operator();
+    for area in [(1.5, 0.0, 2.1, 2.0), (3.9, 0.0, 4.5, 2.0)] {
+        let area = pb::Rect { min_x: area.0, min_y: area.1, max_x: area.2, max_y: area.3 };
+        let request = pb::ForbidRegionRequest {
+            mission_id: mission.id,
+            area: Some(area),
+            actor: "alice".into(),
+            reason: "closed".into(),
+        };
+        operator.forbid_region(request).await.unwrap();
+    }
+    let view = site
+        .until(mission.id, "completion", |v| v.mission.as_ref().unwrap().state() == pb::MissionState::Completed)
+        .await;
+    let done = view.mission.as_ref().unwrap();
+    assert!(!done.leftovers.is_empty(), "the forbidden frontier is reported as left over");
+    assert!(done.leftovers.iter().all(|l| l.reason() == pb::LeftoverReason::Forbidden), "{:?}", done.leftovers);
+    assert_eq!(done.leftovers.iter().map(|l| l.cells).sum::<u64>(), 40, "both frontier columns of 20 cells");
+
+    let home = site.until(mission.id, "a sent home", |v| robot(v, a.id).task_kind() == pb::TaskKind::Home).await;
+    let target = robot(&home, a.id).target.unwrap();
+    assert!((target.x - 2.5).abs() < 0.1 && (target.y - 0.5).abs() < 0.1, "home is the start pose: {target:?}");
+    // Leftovers are stored with the mission.
+    let stored = site.operator().get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap();
+    assert_eq!(stored.into_inner().leftovers.len(), done.leftovers.len());
+
+    // The robot goes silent on its way home: losing it (and the replanning
+    // its released task starts) does not reopen the mission.
+    site.clock.advance(Duration::from_secs(11));
+    let view = site.until(mission.id, "a lost", |v| robot(v, a.id).lost).await;
+    let after = site.operator().get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap();
+    let after = after.into_inner();
+    assert!(after.replans > done.replans, "a replanning followed the loss");
+    assert_eq!(after.state(), pb::MissionState::Completed, "{view:?}");
+    assert_eq!(after.leftovers.len(), done.leftovers.len());
+}
+
+#[tokio::test]
+async fn operator_overrides_take_a_robot_out_of_the_pool_and_give_it_back() {
+    let site = Site::start().await;
+    let mission = site.mission("nearest", 1000.0, 1000.0).await;
+    let (a, mut fleet_a) = site.robot(mission.id, "a", 2.5, 1.0).await;
+    let (b, _fleet_b) = site.robot(mission.id, "b", 3.5, 1.0).await;
+    fleet_a.update_map(middle_known(a.id, 1, 2.5, 1.0)).await.unwrap();
+    site.until(mission.id, "both assigned", |v| v.robots.iter().all(|r| r.task_id != 0)).await;
+    let mut operator = site.operator();
+    let mut act = async |robot_id: u64, action: Action| {
+        let request = pb::OverrideRobotRequest {
+            robot_id,
+            action: Some(action),
+            actor: "alice".into(),
+            reason: "checking".into(),
+        };
+        operator.override_robot(request).await.unwrap().into_inner()
+    };
+
+    // Goto: done on arrival, then back to the pool.
+    let robot_a = act(a.id, Action::Goto(pb::Point { x: 3.0, y: 1.5 })).await;
+    assert_eq!(robot_a.task_kind(), pb::TaskKind::Goto);
+    let goto_task = robot_a.task_id;
+    let assignment = fleet_a.get_assignment(pb::GetAssignmentRequest { robot_id: a.id }).await.unwrap().into_inner();
+    assert_eq!((assignment.task_id, assignment.kind()), (goto_task, pb::TaskKind::Goto));
+    fleet_a.heartbeat(heartbeat(a.id, 3.05, 1.55, pb::RobotState::Arrived, goto_task)).await.unwrap();
+    site.until(mission.id, "a back to exploring", |v| robot(v, a.id).task_kind() == pb::TaskKind::Explore).await;
+    let goto = site.tasks(mission.id, a.id).await.into_iter().find(|t| t.id == goto_task).unwrap();
+    assert_eq!(goto.state(), pb::TaskState::Reached);
+    assert_eq!(goto.created_by, "operator:alice");
+    assert_eq!(goto.note, "checking");
+    assert_eq!(goto.transitions[0].by, "alice");
+
+    // Hold: kept through replannings until released.
+    let held = act(a.id, Action::Hold(Hold {})).await;
+    assert_eq!(held.task_kind(), pb::TaskKind::Hold);
+    let replans = site.operator().get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap();
+    let replans = replans.into_inner().replans;
+    fleet_a.update_map(common::update(a.id, 2, 3.0, 1.5, vec![patch(18, 0, 2, 20, 0.05)])).await.unwrap();
+    let view = site.until(mission.id, "a replanning", |v| v.mission.as_ref().unwrap().replans > replans).await;
+    assert_eq!(robot(&view, a.id).task_id, held.task_id, "a replanning does not touch an override");
+    let released = act(a.id, Action::Release(Release {})).await;
+    assert_ne!(released.task_id, held.task_id);
+    site.until(mission.id, "a exploring after release", |v| robot(v, a.id).task_kind() == pb::TaskKind::Explore).await;
+
+    // Pin: a has the frontier at x = 4 m; b is kept away from it.
+    let pinned = act(a.id, Action::PinFrontier(pb::Point { x: 4.0, y: 1.0 })).await;
+    assert_eq!(pinned.task_kind(), pb::TaskKind::Pin);
+    assert!((target_x(&pinned) - 4.0).abs() < 0.2, "{:?}", pinned.target);
+    site.until(mission.id, "b kept away from the pinned frontier", |v| {
+        robot(v, b.id).target.is_some_and(|t| (t.x - 4.0).abs() > 1.0)
+    })
+    .await;
+
+    // Cancel: back to the pool at once.
+    let cancelled = act(a.id, Action::Cancel(Cancel {})).await;
+    assert_ne!(cancelled.task_kind(), pb::TaskKind::Pin);
+    let history = site.tasks(mission.id, a.id).await;
+    let pin = history.iter().find(|t| t.id == pinned.task_id).unwrap();
+    assert_eq!(pin.state(), pb::TaskState::Cancelled);
+    let events = site.events(mission.id).await;
+    assert_eq!(events.iter().filter(|e| e.kind == "override").count(), 5, "{events:#?}");
+    assert!(events.iter().all(|e| e.kind != "override" || e.actor == "alice"));
+
+    // Overrides of unknown robots are refused precisely.
+    let request = pb::OverrideRobotRequest { robot_id: 999, action: Some(Action::Hold(Hold {})), ..Default::default() };
+    let refused = site.operator().override_robot(request).await.unwrap_err();
+    assert_eq!(refused.code(), Code::NotFound, "{refused:?}");
+}
+
+#[tokio::test]
+async fn forbidden_regions_get_no_targets_until_allowed() {
+    let site = Site::start().await;
+    let mission = site.mission("nearest", 1000.0, 1000.0).await;
+    let (a, mut fleet_a) = site.robot(mission.id, "a", 2.5, 1.0).await;
+    let mut operator = site.operator();
+    let area = pb::Rect { min_x: 1.0, min_y: 0.0, max_x: 2.5, max_y: 2.0 };
+    let request =
+        pb::ForbidRegionRequest { mission_id: mission.id, area: Some(area), actor: "bob".into(), reason: "wet".into() };
+    let region = operator.forbid_region(request).await.unwrap().into_inner();
+    fleet_a.update_map(middle_known(a.id, 1, 2.5, 1.0)).await.unwrap();
+    let view = site.until(mission.id, "a assigned", |v| robot(v, a.id).task_id != 0).await;
+    assert!(target_x(robot(&view, a.id)) > 3.5, "the nearer frontier is forbidden: {:?}", robot(&view, a.id).target);
+    assert_eq!(view.mission.as_ref().unwrap().forbidden_regions.len(), 1);
+
+    let bad = pb::ForbidRegionRequest {
+        mission_id: mission.id,
+        area: Some(pb::Rect { min_x: 3.0, min_y: 0.0, max_x: 2.0, max_y: 1.0 }),
+        ..Default::default()
+    };
+    assert_eq!(operator.forbid_region(bad).await.unwrap_err().code(), Code::InvalidArgument);
+    let unknown = pb::AllowRegionRequest { mission_id: mission.id, region_id: 77, ..Default::default() };
+    assert_eq!(operator.allow_region(unknown).await.unwrap_err().code(), Code::NotFound);
+
+    let allow = pb::AllowRegionRequest {
+        mission_id: mission.id,
+        region_id: region.id,
+        actor: "bob".into(),
+        reason: "dry".into(),
+    };
+    let allowed = operator.allow_region(allow).await.unwrap().into_inner();
+    assert!(allowed.forbidden_regions.is_empty());
+    let kinds: Vec<String> = site.events(mission.id).await.into_iter().map(|e| e.kind).collect();
+    assert!(kinds.contains(&"region_forbidden".into()) && kinds.contains(&"region_allowed".into()), "{kinds:?}");
+}
+
+#[tokio::test]
+async fn a_paused_mission_holds_every_robot_until_resumed() {
+    let site = Site::start().await;
+    let mission = site.mission("nearest", 1000.0, 1000.0).await;
+    let (a, mut fleet_a) = site.robot(mission.id, "a", 2.5, 1.0).await;
+    fleet_a.update_map(middle_known(a.id, 1, 2.5, 1.0)).await.unwrap();
+    site.until(mission.id, "a assigned", |v| robot(v, a.id).task_id != 0).await;
+    let mut operator = site.operator();
+    let control = pb::MissionControlRequest { mission_id: mission.id, actor: "carol".into(), reason: "door".into() };
+    let paused = operator.pause_mission(control.clone()).await.unwrap().into_inner();
+    assert_eq!(paused.state(), pb::MissionState::Paused);
+    let assignment = fleet_a.get_assignment(pb::GetAssignmentRequest { robot_id: a.id }).await.unwrap().into_inner();
+    assert_eq!(assignment.mission_state(), pb::MissionState::Paused, "robots learn that they must hold");
+    // While paused, new map knowledge does not start a replanning.
+    let replans = paused.replans;
+    fleet_a.update_map(common::update(a.id, 2, 2.5, 1.0, vec![patch(15, 0, 5, 20, 0.05)])).await.unwrap();
+    let still = operator.get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_eq!((still.state(), still.replans), (pb::MissionState::Paused, replans));
+    // Pausing twice is refused: the state says so.
+    assert_eq!(operator.pause_mission(control.clone()).await.unwrap_err().code(), Code::FailedPrecondition);
+
+    let resumed = operator.resume_mission(control).await.unwrap().into_inner();
+    assert_eq!(resumed.state(), pb::MissionState::Active);
+    site.until(mission.id, "a replanning after resume", |v| v.mission.as_ref().unwrap().replans > replans).await;
+    let kinds: Vec<String> = site.events(mission.id).await.into_iter().map(|e| e.kind).collect();
+    assert!(kinds.contains(&"mission_paused".into()) && kinds.contains(&"mission_resumed".into()), "{kinds:?}");
+}
+
+#[tokio::test]
+async fn tokens_are_checked_and_refused_requests_change_nothing() {
+    let site = Site::start().await;
+    let mission = site.mission("nearest", 1000.0, 1000.0).await;
+    let (a, mut fleet_a) = site.robot(mission.id, "a", 2.5, 1.0).await;
+    let (b, _) = site.robot(mission.id, "b", 3.5, 1.0).await;
+    let before = site.operator().list_robots(pb::ListRobotsRequest { mission_id: mission.id }).await.unwrap();
+    let events_before = site.events(mission.id).await.len();
+
+    // No token, a wrong token: unauthenticated.
+    for token in [None, Some("guess"), Some("rbt_1_0000")] {
+        let status = site.missions(token).list_missions(pb::ListMissionsRequest {}).await.unwrap_err();
+        assert_eq!(status.code(), Code::Unauthenticated, "{token:?}: {status:?}");
+        assert!(status.message().contains("token"), "{}", status.message());
+        let status = site.fleet(token).heartbeat(heartbeat(a.id, 9.0, 9.0, pb::RobotState::Idle, 0)).await;
+        assert_eq!(status.unwrap_err().code(), Code::Unauthenticated);
+    }
+    // A robot's token reads, and speaks for its robot only.
+    let robot_token = fleet_a.register_robot(pb::RegisterRobotRequest {
+        mission_id: mission.id,
+        name: "a".into(),
+        capabilities: before.get_ref().robots[0].capabilities,
+        pose: Some(pb::Pose { x: 2.5, y: 1.0, theta: 0.0 }),
+    });
+    let renewed = robot_token.await.unwrap().into_inner();
+    assert!(renewed.resumed, "a robot may re-register itself with its own token");
+    let mut as_a = site.missions(Some(&renewed.token));
+    as_a.list_robots(pb::ListRobotsRequest { mission_id: mission.id }).await.unwrap();
+    let denied = [
+        as_a.override_robot(pb::OverrideRobotRequest {
+            robot_id: b.id,
+            action: Some(Action::Hold(Hold {})),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err(),
+        as_a.pause_mission(pb::MissionControlRequest { mission_id: mission.id, ..Default::default() })
+            .await
+            .unwrap_err(),
+        as_a.create_mission(pb::CreateMissionRequest { frame: Some(common::frame(10, 10)), ..Default::default() })
+            .await
+            .unwrap_err(),
+        site.fleet(Some(&renewed.token))
+            .heartbeat(heartbeat(b.id, 9.0, 9.0, pb::RobotState::Idle, 0))
+            .await
+            .unwrap_err(),
+    ];
+    for status in &denied {
+        assert_eq!(status.code(), Code::PermissionDenied, "{status:?}");
+    }
+    // The old token stopped working when the robot registered again.
+    let status = fleet_a.heartbeat(heartbeat(a.id, 2.5, 1.0, pb::RobotState::Idle, 0)).await.unwrap_err();
+    assert_eq!(status.code(), Code::Unauthenticated, "a replaced robot token is refused: {status:?}");
+
+    // Nothing changed.
+    let after = site.operator().list_robots(pb::ListRobotsRequest { mission_id: mission.id }).await.unwrap();
+    let poses = |r: &pb::ListRobotsResponse| r.robots.iter().map(|r| (r.id, r.pose, r.task_id)).collect::<Vec<_>>();
+    assert_eq!(poses(before.get_ref()), poses(after.get_ref()));
+    assert_eq!(site.events(mission.id).await.len(), events_before);
+    let missions = site.operator().list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner();
+    assert_eq!(missions.missions.len(), 1);
+    let paused = missions.missions[0].state();
+    assert_eq!(paused, pb::MissionState::Active);
+}
