@@ -117,6 +117,7 @@ pub fn write_report(experiments: &[(Experiment, std::path::PathBuf)], out: &Path
         let failed = rows.len() - ok;
         let completed = rows.iter().filter(|r| r.get("completed").map(String::as_str) == Some("true")).count();
         let wall: f64 = rows.iter().filter_map(|r| r.get("wall_time_s")?.parse::<f64>().ok()).sum();
+        let seeds = seeds_done(experiment, &rows);
         let _ = writeln!(md, "## {} — `{}`\n", experiment.paper, experiment.name);
         let _ = writeln!(md, "**Claim.** {}\n", experiment.claim);
         let worlds: Vec<String> = experiment
@@ -145,13 +146,13 @@ pub fn write_report(experiments: &[(Experiment, std::path::PathBuf)], out: &Path
         let sim = &experiment.sim;
         let _ = writeln!(
             md,
-            "**Setting.** Worlds: {}. Robots: {:?}. Policies: {}. Seeds 1–{} per cell. Cells {} m, sensor {} m / {}°, \
+            "**Setting.** Worlds: {}. Robots: {:?}. Policies: {}. {}. Cells {} m, sensor {} m / {}°, \
              interference {}, start {} ({}).{} Runs: {} done ({} completed the map, {} failed or timed out; time \
              limit {} s), {:.0} s of run time in all.\n",
             worlds.join(", "),
             experiment.robots,
             policies.join(", "),
-            experiment.seeds,
+            seeds,
             sim.cell_size,
             sim.sensor_range,
             sim.fov,
@@ -252,4 +253,26 @@ pub fn write_report(experiments: &[(Experiment, std::path::PathBuf)], out: &Path
          it stopped when run again with the same `--out`.\n"
     );
     std::fs::write(out, md).map_err(|source| ExperimentError::Io { path: out.to_owned(), source })
+}
+
+/// Which seeds were run: all the planned ones, or (a run cut for time) the
+/// first few, which cover every cell since runs go seed by seed.
+fn seeds_done(experiment: &Experiment, rows: &[crate::experiment::Row]) -> String {
+    let cells = crate::experiment::matrix(experiment).len() / experiment.seeds.max(1) as usize;
+    let runs_of = |seed: u64| rows.iter().filter(|r| r.get("seed").and_then(|s| s.parse().ok()) == Some(seed)).count();
+    let complete = (1..=experiment.seeds).take_while(|&s| runs_of(s) >= cells).count() as u64;
+    if complete == experiment.seeds {
+        format!("Seeds 1–{} per cell", experiment.seeds)
+    } else {
+        let partial = runs_of(complete + 1);
+        format!(
+            "Seeds 1–{complete} per cell of the {} planned (cut for time; runs go seed by seed{})",
+            experiment.seeds,
+            if partial > 0 {
+                format!(", and {partial} of the {cells} cells have seed {} too", complete + 1)
+            } else {
+                String::new()
+            }
+        )
+    }
 }
