@@ -44,16 +44,19 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// List missions.
-    Missions,
-    /// Show, create, pause, resume a mission, or change its policy.
-    #[command(subcommand)]
-    Mission(MissionCommand),
+    /// List, show, create, pause or resume missions, or change a mission's
+    /// policy (`missions` alone lists them).
+    #[command(visible_alias = "mission")]
+    Missions {
+        #[command(subcommand)]
+        command: Option<MissionCommand>,
+    },
     /// List the policies the executive offers, with their parameters.
     Policies,
     /// List a mission's robots: state, task, pose, liveness.
     Robots { mission: u64 },
-    /// List a mission's tasks, newest first.
+    /// A mission's or a robot's task timeline, newest first.
+    #[command(visible_alias = "history")]
     Tasks {
         mission: u64,
         /// Only this robot's (id, or name).
@@ -85,6 +88,16 @@ enum Command {
         #[arg(long, global = true, default_value = "")]
         reason: String,
     },
+    /// Pin the frontier at x,y to a robot: it explores it, the others keep
+    /// away (the same as `override MISSION ROBOT pin X,Y`).
+    Pin {
+        mission: u64,
+        robot: String,
+        #[arg(value_parser = parse_point, allow_hyphen_values = true)]
+        point: pb::Point,
+        #[arg(long, default_value = "")]
+        reason: String,
+    },
     /// Forbid a rectangle (metres: x0,y0,x1,y1): no target is assigned inside.
     Forbid {
         mission: u64,
@@ -107,9 +120,16 @@ enum Command {
         #[arg(long)]
         count: Option<usize>,
     },
+    /// The fused map.
+    #[command(subcommand)]
+    Map(MapCommand),
+}
+
+#[derive(Debug, Subcommand)]
+enum MapCommand {
     /// Export the fused map as a PNG: occupancy, frontier, segments, robots,
     /// targets and forbidden regions.
-    Map {
+    Export {
         mission: u64,
         #[arg(long)]
         png: PathBuf,
@@ -124,6 +144,8 @@ enum Command {
 
 #[derive(Debug, Subcommand)]
 enum MissionCommand {
+    /// Every mission with its state and counters.
+    List,
     /// Everything about one mission.
     Show { mission: u64 },
     /// Create a mission over the frame of a map_server YAML, or an explicit frame.
@@ -269,11 +291,9 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
     let out = output::Output { json: cli.json };
     let actor = cli.actor.clone();
     match cli.command {
-        Command::Missions => {
-            let missions = api.list_missions(pb::ListMissionsRequest {}).await?.into_inner().missions;
-            out.missions(&missions);
+        Command::Missions { command } => {
+            mission_command(&mut api, out, &actor, command.unwrap_or(MissionCommand::List)).await?
         }
-        Command::Mission(command) => mission_command(&mut api, out, &actor, command).await?,
         Command::Policies => {
             let policies = api.list_policies(pb::ListPoliciesRequest {}).await?.into_inner().policies;
             out.policies(&policies);
@@ -301,6 +321,13 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Events { mission } => {
             let events = api.list_events(pb::ListEventsRequest { mission_id: mission }).await?.into_inner().events;
             out.events(&events);
+        }
+        Command::Pin { mission, robot, point, reason } => {
+            let robot_id = robot_id(&mut api, mission, &robot).await?;
+            let request =
+                pb::OverrideRobotRequest { robot_id, action: Some(Action::PinFrontier(point)), actor, reason };
+            let robot = api.override_robot(request).await?.into_inner();
+            out.robots(std::slice::from_ref(&robot));
         }
         Command::Override { mission, robot, action, reason } => {
             let robot_id = robot_id(&mut api, mission, &robot).await?;
@@ -348,7 +375,7 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
                 }
             }
         }
-        Command::Map { mission, png, px, segments } => {
+        Command::Map(MapCommand::Export { mission, png, px, segments }) => {
             let snapshot = api.get_map(pb::GetMapRequest { mission_id: mission }).await?.into_inner();
             let details = api.get_mission(pb::GetMissionRequest { mission_id: mission }).await?.into_inner();
             let labels = if segments {
@@ -373,6 +400,10 @@ async fn mission_command(
 ) -> anyhow::Result<()> {
     let actor = actor.to_owned();
     match command {
+        MissionCommand::List => {
+            let missions = api.list_missions(pb::ListMissionsRequest {}).await?.into_inner().missions;
+            out.missions(&missions);
+        }
         MissionCommand::Show { mission } => {
             let mission = api.get_mission(pb::GetMissionRequest { mission_id: mission }).await?.into_inner();
             out.mission(&mission);

@@ -115,7 +115,7 @@ async fn an_operator_lists_overrides_forbids_and_exports_the_map() {
     );
     assert_eq!(moved[0]["task_kind"], "goto");
     let tasks =
-        json(&coordctl(&url, Some(TOKEN), &["--json", "tasks", &mission, "--robot", "scout", "--history"]).await);
+        json(&coordctl(&url, Some(TOKEN), &["--json", "history", &mission, "--robot", "scout", "--history"]).await);
     assert_eq!(tasks[0]["kind"], "goto");
     assert_eq!(tasks[0]["created_by"], "operator:alice");
     assert_eq!(tasks[0]["note"], "look at the door");
@@ -128,10 +128,11 @@ async fn an_operator_lists_overrides_forbids_and_exports_the_map() {
     let region =
         json(&coordctl(&url, Some(TOKEN), &["--json", "forbid", &mission, "-1,0,2.5,2", "--reason", "wet"]).await);
     assert_eq!(region[0]["area"]["min_x"], -1.0);
-    let shown = json(&coordctl(&url, Some(TOKEN), &["--json", "mission", "show", &mission]).await);
+    let shown = json(&coordctl(&url, Some(TOKEN), &["--json", "missions", "show", &mission]).await);
     assert_eq!(shown["forbidden_regions"].as_array().unwrap().len(), 1);
     let png = dir.path().join("map.png");
-    let wrote = coordctl(&url, Some(TOKEN), &["map", &mission, "--png", png.to_str().unwrap(), "--px", "600"]).await;
+    let wrote =
+        coordctl(&url, Some(TOKEN), &["map", "export", &mission, "--png", png.to_str().unwrap(), "--px", "600"]).await;
     assert!(wrote.status.success(), "{}", String::from_utf8_lossy(&wrote.stderr));
     let picture = image::open(&png).unwrap().to_rgb8();
     assert_eq!((picture.width(), picture.height()), (600, 200), "10 pixels per cell");
