@@ -29,6 +29,8 @@ const PROGRESS_M: f64 = 0.25;
 const BLACKLIST_WINDOW_M: f64 = 1.0;
 /// Radius around a blacklisted target that the robot is not sent to, metres.
 const EXCLUSION_M: f64 = 0.5;
+/// Other entries of the same robot this close widen an entry's exclusion.
+const ESCALATION_M: f64 = 2.0;
 
 /// A working robot's progress: how close it has come to its current
 /// target, and when and where it last made progress. A new target keeps the
@@ -50,8 +52,16 @@ pub(super) struct Blacklisted {
 }
 
 /// The cells around a blacklisted target that the robot is not sent to.
-pub(super) fn exclusion(frame: &GridFrame, cell: Cell) -> CellRect {
-    let radius = (EXCLUSION_M / frame.resolution).ceil().max(2.0) as u32;
+/// Failures that repeat in one place widen it: each other live entry of the
+/// robot within 2 m doubles the radius (up to 16 times), so a robot that
+/// cannot get into an area is not sent to each of its frontier cells in turn.
+pub(super) fn exclusion(frame: &GridFrame, cell: Cell, robot_entries: &[Cell]) -> CellRect {
+    let near = robot_entries
+        .iter()
+        .filter(|&&other| other != cell && other.distance(cell) * frame.resolution <= ESCALATION_M)
+        .count()
+        .min(4);
+    let radius = (EXCLUSION_M * f64::from(1u32 << near) / frame.resolution).ceil().max(2.0) as u32;
     CellRect::new(cell.x - radius as i32, cell.y - radius as i32, 2 * radius + 1, 2 * radius + 1)
 }
 
@@ -272,5 +282,28 @@ impl Mission {
                 end(changes, task, None, "pinned frontier explored");
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use exploration::math::Point2;
+
+    #[test]
+    fn repeated_failures_in_one_place_widen_the_exclusion() {
+        let frame = GridFrame::new(0.1, Point2::new(0.0, 0.0), 200, 200);
+        let target = Cell::new(100, 100);
+        // Alone: 0.5 m around the target.
+        assert_eq!(exclusion(&frame, target, &[target]).width, 11);
+        // Two more failures within 2 m: four times as wide.
+        let nearby = [target, Cell::new(110, 100), Cell::new(100, 115)];
+        assert_eq!(exclusion(&frame, target, &nearby).width, 41);
+        // Failures far away do not count.
+        let far = [target, Cell::new(150, 100), Cell::new(100, 170)];
+        assert_eq!(exclusion(&frame, target, &far).width, 11);
+        // At most 16 times.
+        let many: Vec<Cell> = (0..10).map(|i| Cell::new(100 + i, 101)).chain([target]).collect();
+        assert_eq!(exclusion(&frame, target, &many).width, 2 * 80 + 1);
     }
 }

@@ -762,12 +762,15 @@ impl Mission {
                         .cell_from_world(&task.target)
                         .map(|target| CurrentTask { target, gain_region: task.gain_region })
                 }),
-                excluded: slot
-                    .blacklist
-                    .iter()
-                    .filter(|b| !expired.contains(&(r.id, b.entry.cell)))
-                    .map(|b| lifecycle::exclusion(frame, b.entry.cell))
-                    .collect(),
+                excluded: {
+                    let live: Vec<Cell> = slot
+                        .blacklist
+                        .iter()
+                        .map(|b| b.entry.cell)
+                        .filter(|cell| !expired.contains(&(r.id, *cell)))
+                        .collect();
+                    live.iter().map(|&cell| lifecycle::exclusion(frame, cell, &live)).collect()
+                },
             }
         };
         let forbidden: Vec<CellRect> = self.forbidden.iter().filter_map(|r| self.cell_rect(r.min, r.max)).collect();
