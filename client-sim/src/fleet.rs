@@ -170,6 +170,9 @@ pub struct RunConfig {
     /// Wall-clock time per step, to watch or steer a run as it happens;
     /// `None` runs as fast as the executive answers.
     pub pace: Option<Duration>,
+    /// After exploration, keep stepping while the executive sends the robots
+    /// home, until every live robot is there (or `max_steps` more steps).
+    pub return_home: bool,
 }
 
 /// The robot of the papers' simulations: 360° sensor of 4 m, point-sized, 0.5 m/s.
@@ -212,6 +215,7 @@ impl RunConfig {
             lease_s: None,
             stall_s: None,
             pace: None,
+            return_home: false,
         }
     }
 }
@@ -284,6 +288,10 @@ pub struct RunReport {
     /// With injected faults: the mission's tasks by how they ended, and the
     /// robots the executive holds lost at the end.
     pub fault_record: Option<FaultRecord>,
+    /// With `return_home`: steps from the end of exploration until the
+    /// executive had completed the mission and every live robot was home;
+    /// `None` when not asked for or not reached within the step limit.
+    pub home_steps: Option<u64>,
 }
 
 /// How the executive dealt with injected faults.
@@ -619,6 +627,7 @@ async fn run_against(config: &RunConfig, world: World, url: &str) -> Result<RunR
             break format!("step limit {} reached", config.max_steps);
         }
     };
+    let home_steps = if config.return_home { return_home(&mut robots, &world, &mut team, config).await? } else { None };
     let summary = missions
         .get_mission(pb::GetMissionRequest { mission_id: mission.id })
         .await
@@ -670,7 +679,35 @@ async fn run_against(config: &RunConfig, world: World, url: &str) -> Result<RunR
         world: Some(world),
         segments,
         fault_record,
+        home_steps,
     })
+}
+
+/// Steps the team on after exploration: the executive completes the mission
+/// (it may still send robots to frontier the team could not see was
+/// useless) and then sends each robot home. The number of steps until the
+/// mission is complete and no live robot has a task left.
+async fn return_home(
+    robots: &mut [SimRobot],
+    world: &World,
+    team: &mut TeamMap,
+    config: &RunConfig,
+) -> Result<Option<u64>, SimError> {
+    for step in 1..=config.max_steps {
+        let (mut completed, mut busy) = (false, false);
+        for robot in robots.iter_mut() {
+            let outcome = robot.step(world, team, false).await?;
+            completed |= outcome.mission_completed;
+            busy |= outcome.has_task && !outcome.dead;
+        }
+        if completed && !busy {
+            return Ok(Some(step));
+        }
+        if let Some(pace) = config.pace {
+            tokio::time::sleep(pace).await;
+        }
+    }
+    Ok(None)
 }
 
 async fn fault_record<T>(missions: &mut MissionsClient<T>, mission_id: u64) -> Result<FaultRecord, SimError>

@@ -176,6 +176,10 @@ struct RunArgs {
     /// with coordctl as it happens; 0 runs flat out.
     #[arg(long, default_value_t = 0)]
     pace_ms: u64,
+    /// After exploring, follow the executive's home tasks until every robot
+    /// is back at its start (or the mission's rendezvous).
+    #[arg(long)]
+    return_home: bool,
 }
 
 fn parse_at_step(s: &str) -> Result<(usize, u64), String> {
@@ -278,6 +282,7 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
     config.lease_s = args.lease;
     config.stall_s = args.stall;
     config.pace = (args.pace_ms > 0).then(|| Duration::from_millis(args.pace_ms));
+    config.return_home = args.return_home;
     config.faults = args
         .kills
         .iter()
@@ -294,7 +299,7 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
-        print_summary(&report);
+        print_summary(&report, config.return_home);
     }
     Ok(())
 }
@@ -360,7 +365,7 @@ fn parse_comm_range(s: &str) -> anyhow::Result<CommRange> {
     })
 }
 
-fn print_summary(r: &RunReport) {
+fn print_summary(r: &RunReport, return_home: bool) {
     let steps = |t: Option<u64>| t.map_or("-".to_owned(), |t| t.to_string());
     println!();
     println!("mission {}  map {}  policy {}  robots {}  seed {}", r.mission_id, r.map, r.policy, r.robots, r.seed);
@@ -376,6 +381,11 @@ fn print_summary(r: &RunReport) {
     let distances: Vec<String> = r.distance_per_robot.iter().map(|d| format!("{d:.1}")).collect();
     println!("distance per robot (m): {}", distances.join(", "));
     println!("replans {}  map updates {}  overlap {:.1} %", r.replans, r.map_updates, 100.0 * r.overlap);
+    match r.home_steps {
+        Some(home) => println!("every robot home {home} steps after exploration ended"),
+        None if return_home => println!("not every robot got home within the step limit"),
+        None => {}
+    }
     if let Some(f) = &r.fault_record {
         let states: Vec<String> = f.tasks_by_state.iter().map(|(s, n)| format!("{s} {n}")).collect();
         println!("tasks: {}", states.join(", "));

@@ -113,3 +113,30 @@ async fn the_fleet_finishes_without_a_robot_that_died_and_one_that_froze() {
     assert!(faults.tasks_by_state.get("released").copied().unwrap_or(0) >= 1, "{faults:?}");
     exec.stop().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn after_exploring_the_executive_brings_every_robot_home() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("home.db");
+    let exec = TestExecutive::start(&db).await;
+    let mut config = RunConfig::new(bundled_map("nav2_depot"), 3, "burgard");
+    config.server = Some(exec.url.clone());
+    config.cell_size = Some(0.2);
+    config.seed = 3;
+    config.return_home = true;
+    let report = client_sim::run(&config).await.unwrap();
+    assert!(report.completed, "{report:?}");
+    assert!(report.home_steps.is_some(), "the robots did not all get home: {}", report.ended);
+    for trajectory in &report.trajectories {
+        assert_eq!(trajectory.first(), trajectory.last(), "a robot ended away from its start");
+    }
+    exec.stop().await;
+
+    let pool = sqlx::SqlitePool::connect(&format!("sqlite://{}", db.display())).await.unwrap();
+    let home: Vec<(String, String)> =
+        sqlx::query_as("SELECT state, created_by FROM tasks WHERE kind = 'home'").fetch_all(&pool).await.unwrap();
+    assert!(!home.is_empty(), "no home task was given");
+    assert!(home.iter().all(|(state, by)| state == "reached" && by == "executive"), "{home:?}");
+    let state: String = sqlx::query_scalar("SELECT state FROM missions").fetch_one(&pool).await.unwrap();
+    assert_eq!(state, "completed");
+}
