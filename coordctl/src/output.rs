@@ -22,7 +22,7 @@ impl Output {
             table.row(vec![
                 m.id.to_string(),
                 m.name.clone(),
-                mission_state(m.state()).into(),
+                mission_state(m.state()),
                 m.policy.as_ref().map(|p| p.name.clone()).unwrap_or_default(),
                 m.robots.to_string(),
                 m.frontier_cells.to_string(),
@@ -107,14 +107,14 @@ impl Output {
         }
         let mut table = Table::new(&["ID", "NAME", "STATE", "TASK", "KIND", "TARGET", "POSE", "SEEN", "TRAVELLED"]);
         for r in robots {
-            let state = if r.lost { "LOST".to_owned() } else { robot_state(r.state()).to_owned() };
+            let state = if r.lost { "LOST".to_owned() } else { robot_state(r.state()) };
             let pose = r.pose.unwrap_or_default();
             table.row(vec![
                 r.id.to_string(),
                 r.name.clone(),
                 state,
                 if r.task_id == 0 { "-".into() } else { r.task_id.to_string() },
-                if r.task_id == 0 { "-".into() } else { task_kind(r.task_kind()).into() },
+                if r.task_id == 0 { "-".into() } else { task_kind(r.task_kind()) },
                 point_text(r.target),
                 format!("({:.2}, {:.2})", pose.x, pose.y),
                 r.last_seen.map_or("never".into(), |t| t.to_string()),
@@ -134,8 +134,8 @@ impl Output {
             table.row(vec![
                 t.id.to_string(),
                 name(t.robot_id),
-                task_kind(t.kind()).into(),
-                task_state(t.state()).into(),
+                task_kind(t.kind()),
+                task_state(t.state()),
                 point_text(t.target),
                 t.created_by.clone(),
                 t.created_at.map(|t| t.to_string()).unwrap_or_default(),
@@ -364,48 +364,30 @@ fn task_json(t: &pb::Task, robot: &str) -> Value {
     })
 }
 
-fn mission_state(s: pb::MissionState) -> &'static str {
-    match s {
-        pb::MissionState::Unspecified => "unknown",
-        pb::MissionState::Active => "active",
-        pb::MissionState::Completed => "completed",
-        pb::MissionState::Paused => "paused",
-    }
+/// A proto enum value's name without its type's prefix, in lower case
+/// (`TASK_STATE_ACTIVE` → `active`).
+fn short(name: &str) -> String {
+    ["MISSION_STATE_", "ROBOT_STATE_", "TASK_KIND_", "TASK_STATE_"]
+        .iter()
+        .find_map(|prefix| name.strip_prefix(prefix))
+        .unwrap_or(name)
+        .to_lowercase()
 }
 
-fn robot_state(s: pb::RobotState) -> &'static str {
-    match s {
-        pb::RobotState::Unspecified => "unknown",
-        pb::RobotState::Idle => "idle",
-        pb::RobotState::Moving => "moving",
-        pb::RobotState::Arrived => "arrived",
-        pb::RobotState::Failed => "failed",
-    }
+fn mission_state(s: pb::MissionState) -> String {
+    short(s.as_str_name())
 }
 
-fn task_kind(k: pb::TaskKind) -> &'static str {
-    match k {
-        pb::TaskKind::Unspecified => "-",
-        pb::TaskKind::Explore => "explore",
-        pb::TaskKind::Goto => "goto",
-        pb::TaskKind::Hold => "hold",
-        pb::TaskKind::Home => "home",
-        pb::TaskKind::Pin => "pin",
-    }
+fn robot_state(s: pb::RobotState) -> String {
+    short(s.as_str_name())
 }
 
-fn task_state(s: pb::TaskState) -> &'static str {
-    match s {
-        pb::TaskState::Unspecified => "unknown",
-        pb::TaskState::Assigned => "assigned",
-        pb::TaskState::Active => "active",
-        pb::TaskState::Reached => "reached",
-        pb::TaskState::Preempted => "preempted",
-        pb::TaskState::Overridden => "overridden",
-        pb::TaskState::Failed => "failed",
-        pb::TaskState::Released => "released",
-        pb::TaskState::Cancelled => "cancelled",
-    }
+fn task_kind(k: pb::TaskKind) -> String {
+    short(k.as_str_name())
+}
+
+fn task_state(s: pb::TaskState) -> String {
+    short(s.as_str_name())
 }
 
 fn leftover_reason(r: pb::LeftoverReason) -> &'static str {

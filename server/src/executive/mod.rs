@@ -316,8 +316,7 @@ impl Executive {
         let mut mission = handle.lock().await;
         let peers = heartbeat.peers.clone();
         let changes = mission.prepare_heartbeat(robot_id, heartbeat, Timestamp::now())?;
-        self.store.commit(&changes).await?;
-        mission.apply(changes);
+        self.commit(&mut mission, changes).await?;
         mission.heard_from(robot_id, self.settings.clock.now());
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
@@ -334,8 +333,7 @@ impl Executive {
         let peers = update.peers.clone();
         let changes = mission.prepare_update(robot_id, update, Timestamp::now())?;
         // Durable before it is applied or acknowledged.
-        self.store.commit(&changes).await?;
-        mission.apply(changes);
+        self.commit(&mut mission, changes).await?;
         mission.heard_from(robot_id, self.settings.clock.now());
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
@@ -372,8 +370,7 @@ impl Executive {
         let handle = self.mission_handle(mission_id)?;
         let mut mission = handle.lock().await;
         let changes = mission.prepare_policy(policy, actor, reason, Timestamp::now());
-        self.store.commit(&changes).await?;
-        mission.apply(changes);
+        self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission_id, policy = mission.record().spec.policy.name(), actor, "policy changed");
         self.replan_if_due(&mut mission).await?;
         Ok(Self::summary(&mission))
@@ -459,8 +456,7 @@ impl Executive {
         let handle = self.mission_of_robot(robot_id)?;
         let mut mission = handle.lock().await;
         let changes = mission.prepare_override(robot_id, action, &note, Timestamp::now(), &self.next_task_id)?;
-        self.store.commit(&changes).await?;
-        mission.apply(changes);
+        self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission.record().id, robot = robot_id, ?action, actor = %note.actor, "override");
         self.replan_if_due(&mut mission).await?;
         let record = mission.robot(robot_id)?;
@@ -482,8 +478,7 @@ impl Executive {
         let handle = self.mission_handle(mission_id)?;
         let mut mission = handle.lock().await;
         let changes = mission.prepare_pause(pause, &note, Timestamp::now())?;
-        self.store.commit(&changes).await?;
-        mission.apply(changes);
+        self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission_id, pause, actor = %note.actor, "mission paused or resumed");
         self.replan_if_due(&mut mission).await?;
         Ok(Self::summary(&mission))
@@ -501,9 +496,8 @@ impl Executive {
         let mut mission = handle.lock().await;
         let id = self.next_region_id.load(Ordering::Relaxed) + 1;
         let (changes, region) = mission.prepare_forbid(id, min, max, &note, Timestamp::now())?;
-        self.store.commit(&changes).await?;
+        self.commit(&mut mission, changes).await?;
         self.next_region_id.store(id, Ordering::Relaxed);
-        mission.apply(changes);
         tracing::info!(mission = mission_id, region = id, actor = %note.actor, "region forbidden");
         self.replan_if_due(&mut mission).await?;
         Ok(region)
@@ -519,8 +513,7 @@ impl Executive {
         let handle = self.mission_handle(mission_id)?;
         let mut mission = handle.lock().await;
         let changes = mission.prepare_allow(region, &note, Timestamp::now())?;
-        self.store.commit(&changes).await?;
-        mission.apply(changes);
+        self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission_id, region, actor = %note.actor, "region allowed");
         self.replan_if_due(&mut mission).await?;
         Ok(Self::summary(&mission))
@@ -551,6 +544,14 @@ impl Executive {
             mission.apply(changes);
             self.replan_if_due(&mut mission).await?;
         }
+        Ok(())
+    }
+
+    /// Makes a changeset durable, then applies it to the mission in memory:
+    /// the order every change follows, so that nothing acknowledged is lost.
+    async fn commit(&self, mission: &mut Mission, changes: Changeset) -> Result<(), Error> {
+        self.store.commit(&changes).await?;
+        mission.apply(changes);
         Ok(())
     }
 
