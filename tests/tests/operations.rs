@@ -74,17 +74,7 @@ impl Site {
     /// Registers a robot at (x, y) with the operator's token; returns it and
     /// a client that speaks with the robot's own token.
     async fn robot(&self, mission_id: u64, name: &str, x: f64, y: f64) -> (pb::Robot, Fleet) {
-        let request = pb::RegisterRobotRequest {
-            mission_id,
-            name: name.into(),
-            capabilities: Some(pb::RobotCapabilities {
-                sensor_range_m: 2.0,
-                field_of_view_rad: std::f64::consts::TAU,
-                speed_mps: 0.5,
-                footprint_radius_m: 0.0,
-            }),
-            pose: Some(pb::Pose { x, y, theta: 0.0 }),
-        };
+        let request = common::registration(mission_id, name, x, y);
         let response = self.fleet(Some(OPERATOR)).register_robot(request).await.unwrap().into_inner();
         assert!(response.token.starts_with("rbt_"), "a robot token is issued: {:?}", response.token);
         (response.robot.unwrap(), self.fleet(Some(&response.token)))

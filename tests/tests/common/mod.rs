@@ -119,24 +119,23 @@ pub async fn create_mission(
         .into_inner()
 }
 
+/// Registration of a point-sized robot with a 2 m sensor at (x, y).
+pub fn registration(mission_id: u64, name: &str, x: f64, y: f64) -> pb::RegisterRobotRequest {
+    pb::RegisterRobotRequest {
+        mission_id,
+        name: name.into(),
+        capabilities: Some(pb::RobotCapabilities {
+            sensor_range_m: 2.0,
+            field_of_view_rad: std::f64::consts::TAU,
+            speed_mps: 0.5,
+            footprint_radius_m: 0.0,
+        }),
+        pose: Some(pb::Pose { x, y, theta: 0.0 }),
+    }
+}
+
 pub async fn register(fleet: &mut FleetClient<Channel>, mission_id: u64, name: &str, x: f64, y: f64) -> pb::Robot {
-    fleet
-        .register_robot(pb::RegisterRobotRequest {
-            mission_id,
-            name: name.into(),
-            capabilities: Some(pb::RobotCapabilities {
-                sensor_range_m: 2.0,
-                field_of_view_rad: std::f64::consts::TAU,
-                speed_mps: 0.5,
-                footprint_radius_m: 0.0,
-            }),
-            pose: Some(pb::Pose { x, y, theta: 0.0 }),
-        })
-        .await
-        .unwrap()
-        .into_inner()
-        .robot
-        .unwrap()
+    fleet.register_robot(registration(mission_id, name, x, y)).await.unwrap().into_inner().robot.unwrap()
 }
 
 /// A probability patch with every cell at `p`.
