@@ -63,7 +63,8 @@ where
     if !x0.is_finite() {
         return Ok(());
     }
-    let pad_x = ((x1 - x0) * 0.05).max(0.5);
+    // Half a robot of room on count axes; 5 % on axes of shares (0..1).
+    let pad_x = ((x1 - x0) * 0.05).max(if x1 - x0 >= 2.0 { 0.5 } else { 0.02 });
     let pad_y = ((y1 - y0) * 0.08).max(1e-6);
     let y_low = if y0 >= 0.0 { 0.0f64.max(y0 - pad_y).min(y0) } else { y0 - pad_y };
     let mut chart = ChartBuilder::on(&area)
