@@ -40,7 +40,8 @@ pub struct RemainingFrontier {
 }
 
 impl RemainingFrontier {
-    /// Whether exploration is over: no robot can explore any cluster.
+    /// Whether exploration is over: no robot can explore any cluster
+    /// (Burgard et al. 2005, §II: no reachable frontier is left).
     pub fn is_exhausted(&self) -> bool {
         self.open.is_empty()
     }

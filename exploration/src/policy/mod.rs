@@ -79,7 +79,8 @@ pub struct RobotView {
 }
 
 impl RobotView {
-    /// Whether the robot may be sent to `cell` (not excluded for it).
+    /// Whether the robot may be sent to `cell`: not excluded for it (an
+    /// excluded cell costs it ∞, Wurm et al. 2008, Eq. 4).
     pub fn may_target(&self, cell: Cell) -> bool {
         !self.excluded.iter().any(|r| r.contains(cell))
     }
