@@ -62,6 +62,13 @@ impl ExplorationService {
         let robots = self.executive.robots(mission_id).await?;
         Ok(pb::MissionView { mission: Some((&mission).into()), robots: robots.iter().map(Into::into).collect() })
     }
+
+    /// PauseMission (`pause`) and ResumeMission, once the caller is checked.
+    async fn set_paused(&self, r: pb::MissionControlRequest, pause: bool) -> Result<Response<pb::Mission>, Status> {
+        let id = required_id(r.mission_id, "mission_id")?;
+        let mission = self.executive.pause_mission(id, pause, convert::operator_note(r.actor, r.reason)?).await?;
+        Ok(Response::new((&mission).into()))
+    }
 }
 
 fn required_id(id: u64, field: &str) -> Result<u64, Error> {
@@ -234,10 +241,7 @@ impl Missions for ExplorationService {
         request: Request<pb::MissionControlRequest>,
     ) -> Result<Response<pb::Mission>, Status> {
         self.operator(&request, "pausing a mission")?;
-        let r = request.into_inner();
-        let id = required_id(r.mission_id, "mission_id")?;
-        let mission = self.executive.pause_mission(id, true, convert::operator_note(r.actor, r.reason)?).await?;
-        Ok(Response::new((&mission).into()))
+        self.set_paused(request.into_inner(), true).await
     }
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
@@ -246,10 +250,7 @@ impl Missions for ExplorationService {
         request: Request<pb::MissionControlRequest>,
     ) -> Result<Response<pb::Mission>, Status> {
         self.operator(&request, "resuming a mission")?;
-        let r = request.into_inner();
-        let id = required_id(r.mission_id, "mission_id")?;
-        let mission = self.executive.pause_mission(id, false, convert::operator_note(r.actor, r.reason)?).await?;
-        Ok(Response::new((&mission).into()))
+        self.set_paused(request.into_inner(), false).await
     }
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
