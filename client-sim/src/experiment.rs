@@ -342,7 +342,22 @@ pub fn matrix(experiment: &Experiment) -> Vec<RunSpec> {
 }
 
 /// The run configuration of one run of the matrix.
-fn run_config(experiment: &Experiment, dir: &Path, spec: &RunSpec, server: Option<&str>) -> Result<RunConfig, String> {
+/// An executive that every run of an experiment drives, instead of one
+/// embedded per run.
+#[derive(Debug, Clone)]
+pub struct RemoteExecutive {
+    /// Its gRPC URL, e.g. `http://127.0.0.1:50051`.
+    pub url: String,
+    /// Its operator token, if it requires one.
+    pub token: Option<String>,
+}
+
+fn run_config(
+    experiment: &Experiment,
+    dir: &Path,
+    spec: &RunSpec,
+    server: Option<&RemoteExecutive>,
+) -> Result<RunConfig, String> {
     let world = experiment.worlds.iter().find(|w| w.name == spec.world).ok_or("unknown world")?;
     let policy = experiment.policies.iter().find(|p| p.label() == spec.label).ok_or("unknown policy")?;
     let world_spec = match (&world.map, &world.generator) {
@@ -368,7 +383,10 @@ fn run_config(experiment: &Experiment, dir: &Path, spec: &RunSpec, server: Optio
     let mut config = RunConfig::on(world_spec, spec.robots, &policy.name);
     config.params = policy.params.clone();
     config.seed = spec.seed;
-    config.server = server.map(str::to_owned);
+    if let Some(server) = server {
+        config.server = Some(server.url.clone());
+        config.token = server.token.clone();
+    }
     config.cell_size = Some(world.cell_size.unwrap_or(sim.cell_size));
     config.models = if sim.models.is_empty() {
         vec![RobotModel {
@@ -531,7 +549,7 @@ pub async fn run_experiment(
     config_path: &Path,
     out: &Path,
     jobs: usize,
-    server: Option<String>,
+    server: Option<RemoteExecutive>,
     progress: bool,
 ) -> Result<(), ExperimentError> {
     let experiment = Arc::new(Experiment::load(config_path)?);
@@ -564,7 +582,7 @@ pub async fn run_experiment(
             let policy =
                 experiment.policies.iter().find(|p| p.label() == spec.label).map_or(String::new(), |p| p.name.clone());
             let limit = Duration::from_secs_f64(experiment.time_limit_s);
-            let outcome = match run_config(&experiment, &dir, &spec, server.as_deref()) {
+            let outcome = match run_config(&experiment, &dir, &spec, server.as_ref()) {
                 Err(e) => (Err(e), false),
                 Ok(config) => match tokio::time::timeout(limit, crate::fleet::run(&config)).await {
                     Ok(Ok(report)) => (Ok(report), false),

@@ -134,7 +134,8 @@ pub struct RunConfig {
     pub seed: u64,
     /// An executive to use; `None` starts one on loopback.
     pub server: Option<String>,
-    /// Operator token for the executive, if it requires one.
+    /// Operator token of the executive: the one `server` requires, or the
+    /// one the embedded executive is started with (a random one if `None`).
     pub token: Option<String>,
     /// Database of the embedded executive; `None` uses a temporary file.
     pub db: Option<PathBuf>,
@@ -335,6 +336,8 @@ pub enum SimError {
 /// An executive on loopback, owned by the run; stopped when dropped.
 struct EmbeddedExecutive {
     url: String,
+    /// The operator token it was started with.
+    token: String,
     stop: CancellationToken,
     task: Option<tokio::task::JoinHandle<Result<(), coordinator::ServeError>>>,
     _dir: Option<tempfile::TempDir>,
@@ -348,7 +351,7 @@ impl Drop for EmbeddedExecutive {
 }
 
 impl EmbeddedExecutive {
-    async fn start(db: Option<PathBuf>) -> Result<Self, SimError> {
+    async fn start(db: Option<PathBuf>, token: Option<String>) -> Result<Self, SimError> {
         let (path, dir) = match db {
             Some(path) => (path, None),
             None => {
@@ -361,12 +364,19 @@ impl EmbeddedExecutive {
         let address = listener.local_addr().map_err(|e| SimError::Executive(e.to_string()))?;
         let stop = CancellationToken::new();
         let shutdown = stop.clone().cancelled_owned();
+        // Loopback is shared with every local user: the embedded executive
+        // is not left open, only this fleet holds its operator token.
+        let token = match token {
+            Some(token) => token,
+            None => coordinator::auth::random_operator_token().map_err(|e| SimError::Executive(e.to_string()))?,
+        };
         let mut config = coordinator::Config::new(path);
+        config.operator_token = Some(token.clone());
         // The fleet waits for every acknowledgement: a crash of this process
         // takes the fleet with it, so power-cut durability buys nothing here.
         config.durability = coordinator::Durability::Normal;
         let task = tokio::spawn(coordinator::run(listener, shutdown, config));
-        Ok(Self { url: format!("http://{address}"), stop, task: Some(task), _dir: dir })
+        Ok(Self { url: format!("http://{address}"), token, stop, task: Some(task), _dir: dir })
     }
 
     async fn stop(mut self) -> Result<(), SimError> {
@@ -388,14 +398,14 @@ pub async fn run(config: &RunConfig) -> Result<RunReport, SimError> {
     let world = config.world.build(config.cell_size, config.start, config.seed)?;
     let embedded = match &config.server {
         Some(_) => None,
-        None => Some(EmbeddedExecutive::start(config.db.clone()).await?),
+        None => Some(EmbeddedExecutive::start(config.db.clone(), config.token.clone()).await?),
     };
-    let url = match (&config.server, &embedded) {
-        (Some(url), _) => url.clone(),
-        (None, Some(e)) => e.url.clone(),
+    let (url, token) = match (&config.server, &embedded) {
+        (Some(url), _) => (url.clone(), config.token.clone()),
+        (None, Some(e)) => (e.url.clone(), Some(e.token.clone())),
         (None, None) => unreachable!("an executive was started"),
     };
-    let result = run_against(config, world, &url).await;
+    let result = run_against(config, world, &url, token.as_deref()).await;
     if let Some(executive) = embedded {
         executive.stop().await?;
     }
@@ -445,13 +455,13 @@ fn communication_clusters(robots: &[SimRobot], range_cells: f64) -> Vec<Vec<usiz
     groups.into_values().collect()
 }
 
-async fn run_against(config: &RunConfig, world: World, url: &str) -> Result<RunReport, SimError> {
+async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<&str>) -> Result<RunReport, SimError> {
     let started = Instant::now();
     let channel = tonic::transport::Endpoint::from_shared(url.to_owned())
         .map_err(|e| SimError::Executive(format!("bad executive URL {url}: {e}")))?
         .connect_timeout(Duration::from_secs(5))
         .connect_lazy();
-    let bearer = exploration_proto::Bearer::new(config.token.as_deref())
+    let bearer = exploration_proto::Bearer::new(token)
         .map_err(|e| SimError::Executive(format!("the token is not valid metadata: {e}")))?;
     let mut missions = MissionsClient::with_interceptor(channel, bearer);
     let frame = world.frame;
@@ -505,7 +515,7 @@ async fn run_against(config: &RunConfig, world: World, url: &str) -> Result<RunR
         robots.push(
             SimRobot::connect(
                 url,
-                config.token.as_deref(),
+                token,
                 mission.id,
                 format!("robot-{i}"),
                 start,

@@ -50,6 +50,9 @@ struct ExperimentArgs {
     /// Drive one executive for every run instead of one embedded per run.
     #[arg(long)]
     server: Option<String>,
+    /// Operator token of the executive given by `--server`.
+    #[arg(long, env = "COORDINATOR_OPERATOR_TOKEN", hide_env_values = true)]
+    token: Option<String>,
     /// Only redraw summary and plots from the runs already done.
     #[arg(long)]
     replot: bool,
@@ -95,7 +98,8 @@ struct RunArgs {
     /// started on a loopback port for the run.
     #[arg(long)]
     server: Option<String>,
-    /// Operator token of that executive.
+    /// Operator token of that executive; for the embedded one, the token it
+    /// is started with (otherwise a random one only this run knows).
     #[arg(long, env = "COORDINATOR_OPERATOR_TOKEN", hide_env_values = true)]
     token: Option<String>,
     /// Database file for the embedded executive (default: a temporary file).
@@ -313,7 +317,8 @@ async fn experiment(args: ExperimentArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let jobs = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    client_sim::experiment::run_experiment(&args.config, &out, jobs, args.server, true)
+    let server = args.server.map(|url| client_sim::experiment::RemoteExecutive { url, token: args.token });
+    client_sim::experiment::run_experiment(&args.config, &out, jobs, server, true)
         .await
         .with_context(|| format!("experiment {} failed", args.config.display()))?;
     eprintln!("results in {}", out.display());

@@ -121,14 +121,24 @@ pub fn sha256_hex(token: &str) -> String {
     Sha256::digest(token.as_bytes()).iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// A new token for a robot and its hash.
-pub fn issue_robot_token(robot: RobotId) -> Result<(String, String), Error> {
+/// 32 bytes of OS randomness as 64 lower-case hex digits.
+fn random_secret() -> Result<String, Error> {
     let mut secret = [0u8; 32];
     getrandom::fill(&mut secret).map_err(|e| Error::Internal(format!("no randomness for a token: {e}")))?;
-    let hex: String = secret.iter().map(|b| format!("{b:02x}")).collect();
-    let token = format!("rbt_{robot}_{hex}");
+    Ok(secret.iter().map(|b| format!("{b:02x}")).collect())
+}
+
+/// A new token for a robot and its hash.
+pub fn issue_robot_token(robot: RobotId) -> Result<(String, String), Error> {
+    let token = format!("rbt_{robot}_{}", random_secret()?);
     let hash = sha256_hex(&token);
     Ok((token, hash))
+}
+
+/// A fresh operator token, for an executive started inside another program
+/// (the simulator's loopback executive) that should not run open.
+pub fn random_operator_token() -> Result<String, Error> {
+    Ok(format!("opr_{}", random_secret()?))
 }
 
 #[cfg(test)]
@@ -141,6 +151,17 @@ mod tests {
             m.insert("authorization", format!("Bearer {t}").parse().unwrap());
         }
         m
+    }
+
+    #[test]
+    fn random_operator_tokens_differ_and_are_not_robot_tokens() {
+        let (a, b) = (random_operator_token().unwrap(), random_operator_token().unwrap());
+        assert_ne!(a, b);
+        assert_eq!(a.len(), 4 + 64);
+        assert_eq!(robot_of(&a), None);
+        let auth = Authenticator::with_operator_token(&a);
+        assert_eq!(auth.caller(&metadata(Some(&a)), |_| None).unwrap(), Caller::Operator);
+        assert!(auth.caller(&metadata(Some(&b)), |_| None).is_err());
     }
 
     #[test]
