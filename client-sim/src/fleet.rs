@@ -427,6 +427,23 @@ fn start_cells(world: &World, config: &RunConfig) -> Vec<Cell> {
     }
 }
 
+/// Passes robot `from` what it measured that robot `to` was not yet sent
+/// (Burgard et al. 2005 §III: each robot logs what it sent each peer, so
+/// nothing is integrated twice).
+fn share(robots: &mut [SimRobot], from: usize, to: usize, world: &World) {
+    if from == to {
+        return;
+    }
+    let (sender, receiver) = if from < to {
+        let (low, high) = robots.split_at_mut(to);
+        (&mut low[from], &mut high[0])
+    } else {
+        let (low, high) = robots.split_at_mut(from);
+        (&mut high[0], &mut low[to])
+    };
+    sender.share_with(receiver, to, world);
+}
+
 /// Robots in range of each other, through any chain of robots in range
 /// (the ad-hoc network forwards within a cluster, Burgard et al. §III).
 fn communication_clusters(robots: &[SimRobot], range_cells: f64) -> Vec<Vec<usize>> {
@@ -562,32 +579,36 @@ async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<
     };
     let ended = loop {
         // Limited communication: who is in range, and what they pass on.
-        if let Some(range) = range_cells {
-            for cluster in communication_clusters(&robots, range) {
-                for &a in &cluster {
-                    for &b in &cluster {
-                        if a != b {
-                            let (from, to) = if a < b {
-                                let (low, high) = robots.split_at_mut(b);
-                                (&mut low[a], &mut high[0])
-                            } else {
-                                let (low, high) = robots.split_at_mut(a);
-                                (&mut high[0], &mut low[b])
-                            };
-                            from.share_with(to, b, &world);
-                        }
-                    }
+        let clusters = range_cells.map(|range| communication_clusters(&robots, range)).unwrap_or_default();
+        let mut cluster_of = vec![None; robots.len()];
+        for (c, cluster) in clusters.iter().enumerate() {
+            for &a in cluster {
+                cluster_of[a] = Some(c);
+                for &b in cluster {
+                    share(&mut robots, a, b, &world);
                 }
-                let ids: Vec<u64> = cluster.iter().map(|&k| robots[k].id).collect();
-                for &k in &cluster {
-                    robots[k].peers = ids.iter().copied().filter(|id| *id != robots[k].id).collect();
-                }
+            }
+        }
+        for cluster in &clusters {
+            let ids: Vec<u64> = cluster.iter().map(|&k| robots[k].id).collect();
+            for &k in cluster {
+                let peers = ids.iter().copied().filter(|id| *id != robots[k].id).collect();
+                robots[k].hear_peers(peers, &world, &team).await?;
             }
         }
         let mut any_task = false;
         let mut executive_done = false;
         let cells: Vec<Cell> = robots.iter().map(|r| r.cell).collect();
-        for (i, robot) in robots.iter_mut().enumerate() {
+        for i in 0..robots.len() {
+            // Robots in range talk all the time: what one senses reaches its
+            // sub-team before the next one plans on its own map, as the
+            // executive, planning on the sub-team's map, expects.
+            if let Some(c) = cluster_of[i] {
+                for &from in &clusters[c] {
+                    share(&mut robots, from, i, &world);
+                }
+            }
+            let robot = &mut robots[i];
             // Interference: a move near another robot succeeds with probability p.
             let blocked = config.interference.is_some_and(|f| {
                 let near = cells

@@ -155,7 +155,8 @@ pub struct SimRobot {
     pub own: OccupancyGrid,
     /// Reachable free cells it knows.
     pub known_reachable: usize,
-    /// Its own measurements, in order (cell index, occupied), for its peers.
+    /// Every measurement it integrated, its own and those peers passed on, in
+    /// order (cell index, occupied): what it forwards to the others.
     log: Vec<(u32, bool)>,
     /// For each robot of the team (by index), how much of `log` it has.
     sent: Vec<usize>,
@@ -384,6 +385,20 @@ impl SimRobot {
         Ok(outcome)
     }
 
+    /// Tells the executive at once when the robots in range change, with
+    /// what they passed on, so that it plans this robot's sub-team on the
+    /// map the sub-team holds now rather than the one of the last step.
+    pub async fn hear_peers(&mut self, peers: Vec<u64>, world: &World, team: &TeamMap) -> Result<(), RobotError> {
+        if peers == self.peers || self.is_dead() {
+            self.peers = peers;
+            return Ok(());
+        }
+        self.peers = peers;
+        let patch = self.patch();
+        let assignment = self.send_update(world, patch).await?;
+        self.adopt(assignment, world, team).await
+    }
+
     /// Computes bids on the team's map (§4.1) and sends them.
     async fn submit_bids(
         &mut self,
@@ -470,8 +485,11 @@ impl SimRobot {
         );
     }
 
-    /// Passes the measurements `to` does not have yet, and marks them sent
-    /// (Burgard et al. 2005, §III: a per-peer log).
+    /// Passes the measurements `to` was not sent yet, and marks them sent
+    /// (Burgard et al. 2005, §III: a per-peer log). Forwarded measurements
+    /// count too, so that robots that meet end up with their clusters' joint
+    /// map, the map the executive plans their sub-team on; `to` integrates a
+    /// measurement only once, into cells it does not know yet.
     pub fn share_with(&mut self, to: &mut SimRobot, to_index: usize, world: &World) {
         let frame = world.frame;
         let start = self.sent[to_index];
@@ -479,6 +497,7 @@ impl SimRobot {
             let cell = frame.cell(i as usize);
             if to.own.class(cell) == CellClass::Unknown {
                 to.own.set(cell, if occupied { KNOWN_OCCUPIED } else { KNOWN_FREE });
+                to.log.push((i, occupied));
                 to.dirty = Some(to.dirty.map_or(CellRect::new(cell.x, cell.y, 1, 1), |r| r.including(cell)));
                 if world.reachable[i as usize] {
                     to.known_reachable += 1;
