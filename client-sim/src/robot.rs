@@ -11,10 +11,11 @@
 //! 2005, §III), on which every robot plans its path, and each robot sends
 //! the executive its own measurements. With limited communication each
 //! robot knows only what it measured and what peers in range passed on:
-//! every robot keeps a log of its measurements and, for each peer, how much
-//! of it that peer already has, so nothing is sent or integrated twice
-//! (§III); it plans on its own map and sends the executive its whole
-//! knowledge.
+//! every robot keeps a log of the measurements it integrated (its own and
+//! forwarded ones) and, for each peer, how much of it that peer already
+//! has, so nothing is sent or integrated twice and robots that meet end up
+//! with their clusters' joint map (§III); it plans on its own map and sends
+//! the executive its whole knowledge.
 
 use std::collections::VecDeque;
 use std::time::Duration;
