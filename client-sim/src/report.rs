@@ -58,11 +58,15 @@ pub fn check(experiment: &Experiment, spec: &CheckSpec, data: &Data) -> Verdict 
             } else if spec.kind != "similar" && significant && difference > 0.0 {
                 opposing += 1;
             }
+            // Seconds need a decimal: runs take a few of them.
+            let digits = if spec.metric.ends_with("_s") { 1 } else { 0 };
             lines.push(format!(
-                "{world}, {n} robots: {} {:.0} vs {} {:.0} {} ({}{:.1} % ± {:.1}){}",
+                "{world}, {n} robots: {} {:.*} vs {} {:.*} {} ({}{:.1} % ± {:.1}){}",
                 spec.better,
+                digits,
                 better.mean(),
                 spec.worse,
+                digits,
                 worse.mean(),
                 spec.metric,
                 if gain >= 0.0 { "−" } else { "+" },
