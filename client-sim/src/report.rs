@@ -248,13 +248,18 @@ pub fn write_report(experiments: &[(Experiment, std::path::PathBuf)], out: &Path
             let _ = writeln!(md, "**Notes.** {}\n", experiment.notes.trim());
         }
     }
+    // The experiments of this report, in its order (configs are named after them).
+    let names: Vec<&str> = experiments.iter().map(|(e, _)| e.name.as_str()).collect();
+    let configs: Vec<String> = names.iter().map(|n| format!("experiments/{n}.toml")).collect();
     let _ = writeln!(
         md,
-        "## Regenerating\n\n```sh\ncargo build --release -p client-sim\nfor e in experiments/*.toml; do\n  \
-         target/release/fleet-sim experiment --config \"$e\" --out docs/results/$(basename \"$e\" .toml)\ndone\n\
-         target/release/fleet-sim report --out docs/results.md experiments/*.toml\n```\n\n\
+        "## Regenerating\n\n```sh\ncargo build --release -p client-sim\nfor e in {}; do\n  \
+         target/release/fleet-sim experiment --config experiments/$e.toml --out docs/results/$e\ndone\n\
+         target/release/fleet-sim report --out docs/results.md {}\n```\n\n\
          Experiments over the shared maps need `EXPLORATION_SHARED_MAPS`; an interrupted experiment resumes where \
-         it stopped when run again with the same `--out`.\n"
+         it stopped when run again with the same `--out`.\n",
+        names.join(" "),
+        configs.join(" ")
     );
     std::fs::write(out, md).map_err(|source| ExperimentError::Io { path: out.to_owned(), source })
 }
