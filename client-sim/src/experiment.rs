@@ -341,7 +341,6 @@ pub fn matrix(experiment: &Experiment) -> Vec<RunSpec> {
     runs
 }
 
-/// The run configuration of one run of the matrix.
 /// An executive that every run of an experiment drives, instead of one
 /// embedded per run.
 #[derive(Debug, Clone)]
@@ -352,6 +351,7 @@ pub struct RemoteExecutive {
     pub token: Option<String>,
 }
 
+/// The run configuration of one run of the matrix.
 fn run_config(
     experiment: &Experiment,
     dir: &Path,

@@ -336,8 +336,6 @@ pub enum SimError {
 /// An executive on loopback, owned by the run; stopped when dropped.
 struct EmbeddedExecutive {
     url: String,
-    /// The operator token it was started with.
-    token: String,
     stop: CancellationToken,
     task: Option<tokio::task::JoinHandle<Result<(), coordinator::ServeError>>>,
     _dir: Option<tempfile::TempDir>,
@@ -351,7 +349,7 @@ impl Drop for EmbeddedExecutive {
 }
 
 impl EmbeddedExecutive {
-    async fn start(db: Option<PathBuf>, token: Option<String>) -> Result<Self, SimError> {
+    async fn start(db: Option<PathBuf>, operator_token: String) -> Result<Self, SimError> {
         let (path, dir) = match db {
             Some(path) => (path, None),
             None => {
@@ -364,19 +362,13 @@ impl EmbeddedExecutive {
         let address = listener.local_addr().map_err(|e| SimError::Executive(e.to_string()))?;
         let stop = CancellationToken::new();
         let shutdown = stop.clone().cancelled_owned();
-        // Loopback is shared with every local user: the embedded executive
-        // is not left open, only this fleet holds its operator token.
-        let token = match token {
-            Some(token) => token,
-            None => coordinator::auth::random_operator_token().map_err(|e| SimError::Executive(e.to_string()))?,
-        };
         let mut config = coordinator::Config::new(path);
-        config.operator_token = Some(token.clone());
+        config.operator_token = Some(operator_token);
         // The fleet waits for every acknowledgement: a crash of this process
         // takes the fleet with it, so power-cut durability buys nothing here.
         config.durability = coordinator::Durability::Normal;
         let task = tokio::spawn(coordinator::run(listener, shutdown, config));
-        Ok(Self { url: format!("http://{address}"), token, stop, task: Some(task), _dir: dir })
+        Ok(Self { url: format!("http://{address}"), stop, task: Some(task), _dir: dir })
     }
 
     async fn stop(mut self) -> Result<(), SimError> {
@@ -396,14 +388,19 @@ pub async fn run(config: &RunConfig) -> Result<RunReport, SimError> {
         return Err(SimError::Config("a run needs at least one robot and one robot model".into()));
     }
     let world = config.world.build(config.cell_size, config.start, config.seed)?;
-    let embedded = match &config.server {
-        Some(_) => None,
-        None => Some(EmbeddedExecutive::start(config.db.clone(), config.token.clone()).await?),
-    };
-    let (url, token) = match (&config.server, &embedded) {
-        (Some(url), _) => (url.clone(), config.token.clone()),
-        (None, Some(e)) => (e.url.clone(), Some(e.token.clone())),
-        (None, None) => unreachable!("an executive was started"),
+    let (embedded, url, token) = match &config.server {
+        Some(url) => (None, url.clone(), config.token.clone()),
+        None => {
+            // Loopback is shared with every local user: the embedded executive
+            // is not left open, only this fleet holds its operator token.
+            let token = match &config.token {
+                Some(token) => token.clone(),
+                None => coordinator::auth::random_operator_token().map_err(|e| SimError::Executive(e.to_string()))?,
+            };
+            let executive = EmbeddedExecutive::start(config.db.clone(), token.clone()).await?;
+            let url = executive.url.clone();
+            (Some(executive), url, Some(token))
+        }
     };
     let result = run_against(config, world, &url, token.as_deref()).await;
     if let Some(executive) = embedded {
@@ -427,21 +424,20 @@ fn start_cells(world: &World, config: &RunConfig) -> Vec<Cell> {
     }
 }
 
-/// Passes robot `from` what it measured that robot `to` was not yet sent
-/// (Burgard et al. 2005 §III: each robot logs what it sent each peer, so
-/// nothing is integrated twice).
-fn share(robots: &mut [SimRobot], from: usize, to: usize, world: &World) {
-    if from == to {
-        return;
+/// Gives robot `to` what the other robots of its cluster integrated and
+/// have not sent it yet (Burgard et al. 2005 §III: each robot logs what it
+/// sent each peer, so nothing is integrated twice).
+fn gather(robots: &mut [SimRobot], cluster: &[usize], to: usize, world: &World) {
+    for &from in cluster.iter().filter(|&&from| from != to) {
+        let (sender, receiver) = if from < to {
+            let (low, high) = robots.split_at_mut(to);
+            (&mut low[from], &mut high[0])
+        } else {
+            let (low, high) = robots.split_at_mut(from);
+            (&mut high[0], &mut low[to])
+        };
+        sender.share_with(receiver, to, world);
     }
-    let (sender, receiver) = if from < to {
-        let (low, high) = robots.split_at_mut(to);
-        (&mut low[from], &mut high[0])
-    } else {
-        let (low, high) = robots.split_at_mut(from);
-        (&mut high[0], &mut low[to])
-    };
-    sender.share_with(receiver, to, world);
 }
 
 /// Robots in range of each other, through any chain of robots in range
@@ -582,11 +578,9 @@ async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<
         let clusters = range_cells.map(|range| communication_clusters(&robots, range)).unwrap_or_default();
         let mut cluster_of = vec![None; robots.len()];
         for (c, cluster) in clusters.iter().enumerate() {
-            for &a in cluster {
-                cluster_of[a] = Some(c);
-                for &b in cluster {
-                    share(&mut robots, a, b, &world);
-                }
+            for &k in cluster {
+                cluster_of[k] = Some(c);
+                gather(&mut robots, cluster, k, &world);
             }
         }
         for cluster in &clusters {
@@ -604,9 +598,7 @@ async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<
             // sub-team before the next one plans on its own map, as the
             // executive, planning on the sub-team's map, expects.
             if let Some(c) = cluster_of[i] {
-                for &from in &clusters[c] {
-                    share(&mut robots, from, i, &world);
-                }
+                gather(&mut robots, &clusters[c], i, &world);
             }
             let robot = &mut robots[i];
             // Interference: a move near another robot succeeds with probability p.
