@@ -91,6 +91,14 @@ pub enum PatchError {
         /// The offending value.
         value: f32,
     },
+    /// A stored log-odds value outside the clamp range.
+    #[error("stored value {index} of the patch is {value}, outside the log-odds range the executive writes")]
+    StoredOutOfRange {
+        /// Row-major position inside the patch.
+        index: usize,
+        /// The offending value.
+        value: f32,
+    },
     /// A probability outside [0, 1].
     #[error("value {index} of the patch is {value}, outside the probability range [0, 1]")]
     ProbabilityOutOfRange {
@@ -131,8 +139,14 @@ impl Patch {
     }
 
     /// Rebuilds a patch from its stored log-odds (NaN = unknown), as written by
-    /// [`Patch::log_odds`]. Values are trusted.
+    /// [`Patch::log_odds`]. Each value must be unknown or within the clamp
+    /// range, as written.
     pub fn from_stored(rect: CellRect, log_odds: Vec<f32>) -> Result<Self, PatchError> {
+        if let Some((index, &value)) =
+            log_odds.iter().enumerate().find(|(_, v)| !v.is_nan() && !(LOG_ODDS_MIN..=LOG_ODDS_MAX).contains(*v))
+        {
+            return Err(PatchError::StoredOutOfRange { index, value });
+        }
         if rect.width == 0 || rect.height == 0 {
             return Err(PatchError::Empty { width: rect.width, height: rect.height });
         }

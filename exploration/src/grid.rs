@@ -60,11 +60,12 @@ impl CellRect {
         Self { x, y, width, height }
     }
 
-    /// The smallest rectangle holding both corner cells.
+    /// The smallest rectangle holding both corner cells (its sides saturate
+    /// at `u32::MAX` cells: a span of 2³² cells cannot be represented).
     pub fn spanning(a: Cell, b: Cell) -> Self {
         let (x0, x1) = (a.x.min(b.x), a.x.max(b.x));
         let (y0, y1) = (a.y.min(b.y), a.y.max(b.y));
-        Self::new(x0, y0, (x1 - x0 + 1) as u32, (y1 - y0 + 1) as u32)
+        Self::new(x0, y0, side(i64::from(x0), i64::from(x1) + 1), side(i64::from(y0), i64::from(y1) + 1))
     }
 
     /// Number of cells.
@@ -72,14 +73,15 @@ impl CellRect {
         u64::from(self.width) * u64::from(self.height)
     }
 
-    /// One past the rightmost column.
+    /// One past the rightmost column (saturating at `i32::MAX`, so that a
+    /// rectangle from any input never wraps around).
     pub fn x_end(&self) -> i32 {
-        self.x + self.width as i32
+        saturate(i64::from(self.x) + i64::from(self.width))
     }
 
-    /// One past the top row.
+    /// One past the top row (saturating at `i32::MAX`).
     pub fn y_end(&self) -> i32 {
-        self.y + self.height as i32
+        saturate(i64::from(self.y) + i64::from(self.height))
     }
 
     /// Whether `cell` lies inside.
@@ -91,9 +93,9 @@ impl CellRect {
     pub fn including(&self, cell: Cell) -> Self {
         let x0 = self.x.min(cell.x);
         let y0 = self.y.min(cell.y);
-        let x1 = self.x_end().max(cell.x + 1);
-        let y1 = self.y_end().max(cell.y + 1);
-        Self::new(x0, y0, (x1 - x0) as u32, (y1 - y0) as u32)
+        let x1 = i64::from(self.x_end()).max(i64::from(cell.x) + 1);
+        let y1 = i64::from(self.y_end()).max(i64::from(cell.y) + 1);
+        Self::new(x0, y0, side(i64::from(x0), x1), side(i64::from(y0), y1))
     }
 
     /// The smallest rectangle holding both.
@@ -102,7 +104,7 @@ impl CellRect {
         let y0 = self.y.min(other.y);
         let x1 = self.x_end().max(other.x_end());
         let y1 = self.y_end().max(other.y_end());
-        Self::new(x0, y0, (x1 - x0) as u32, (y1 - y0) as u32)
+        Self::new(x0, y0, side(i64::from(x0), i64::from(x1)), side(i64::from(y0), i64::from(y1)))
     }
 
     /// The overlap of both, if any cell is shared.
@@ -111,19 +113,32 @@ impl CellRect {
         let y0 = self.y.max(other.y);
         let x1 = self.x_end().min(other.x_end());
         let y1 = self.y_end().min(other.y_end());
-        (x1 > x0 && y1 > y0).then(|| Self::new(x0, y0, (x1 - x0) as u32, (y1 - y0) as u32))
+        (x1 > x0 && y1 > y0)
+            .then(|| Self::new(x0, y0, side(i64::from(x0), i64::from(x1)), side(i64::from(y0), i64::from(y1))))
     }
 
-    /// Grown by `margin` cells on every side.
+    /// Grown by `margin` cells on every side (saturating at the ends of `i32`).
     pub fn grown(&self, margin: u32) -> Self {
-        let m = margin as i32;
-        Self::new(self.x - m, self.y - m, self.width + 2 * margin, self.height + 2 * margin)
+        let m = i64::from(margin);
+        let (x0, y0) = (saturate(i64::from(self.x) - m), saturate(i64::from(self.y) - m));
+        let (x1, y1) = (saturate(i64::from(self.x_end()) + m), saturate(i64::from(self.y_end()) + m));
+        Self::new(x0, y0, side(i64::from(x0), i64::from(x1)), side(i64::from(y0), i64::from(y1)))
     }
 
     /// Every cell, row by row from the bottom.
     pub fn cells(&self) -> impl Iterator<Item = Cell> + '_ {
         (self.y..self.y_end()).flat_map(move |y| (self.x..self.x_end()).map(move |x| Cell::new(x, y)))
     }
+}
+
+/// A coordinate clamped into `i32`.
+fn saturate(v: i64) -> i32 {
+    v.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+}
+
+/// The length of `start..end`, clamped into `u32`.
+fn side(start: i64, end: i64) -> u32 {
+    (end - start).clamp(0, i64::from(u32::MAX)) as u32
 }
 
 /// How a grid sits in the world: cell size, where cell (0, 0) is, and size.
@@ -199,6 +214,21 @@ impl GridFrame {
     pub fn cell_from_world(&self, point_in_world: &Point2) -> Option<Cell> {
         let cell = self.cell_from_world_unchecked(point_in_world);
         self.contains(cell).then_some(cell)
+    }
+
+    /// The cells of the grid that a world rectangle (`min` to `max`, in
+    /// metres) touches, or `None` when it misses the grid. Clipped in world
+    /// coordinates first, so any finite or infinite corner is safe.
+    pub fn rect_from_world(&self, min: &Point2, max: &Point2) -> Option<CellRect> {
+        let to_cells = |v: f64, origin: f64, cells: u32| {
+            let c = ((v - origin) / self.resolution).floor();
+            if c.is_nan() { None } else { Some(c.clamp(-1.0, f64::from(cells)) as i64) }
+        };
+        let (x0, x1) = (to_cells(min.x, self.origin.x, self.width)?, to_cells(max.x, self.origin.x, self.width)?);
+        let (y0, y1) = (to_cells(min.y, self.origin.y, self.height)?, to_cells(max.y, self.origin.y, self.height)?);
+        let (x0, x1) = (x0.min(x1).max(0), x0.max(x1).min(i64::from(self.width) - 1));
+        let (y0, y1) = (y0.min(y1).max(0), y0.max(y1).min(i64::from(self.height) - 1));
+        (x0 <= x1 && y0 <= y1).then(|| CellRect::new(x0 as i32, y0 as i32, side(x0, x1 + 1), side(y0, y1 + 1)))
     }
 
     /// The cell holding a world point, which may be off the grid.
@@ -400,6 +430,29 @@ mod tests {
         assert!(!f.contains_rect(&CellRect::new(0, 0, 0, 2)));
         assert_eq!(f.clip(&CellRect::new(8, 4, 5, 5)), Some(CellRect::new(8, 4, 2, 2)));
         assert_eq!(f.clip(&CellRect::new(20, 4, 5, 5)), None);
+    }
+
+    #[test]
+    fn world_rectangles_of_any_size_clip_to_the_grid() {
+        let f = frame();
+        let whole = Some(f.bounds());
+        // A rectangle spanning 2³² cells and more, and infinite corners, clip
+        // to the grid instead of wrapping around.
+        assert_eq!(f.rect_from_world(&Point2::new(-1e6, -1e6), &Point2::new(1e6, 1e6)), whole);
+        assert_eq!(f.rect_from_world(&Point2::new(-1e300, -1e300), &Point2::new(1e300, 1e300)), whole);
+        let inf = f64::INFINITY;
+        assert_eq!(f.rect_from_world(&Point2::new(-inf, -inf), &Point2::new(inf, inf)), whole);
+        assert_eq!(f.rect_from_world(&Point2::new(f64::NAN, 0.0), &Point2::new(1.0, 1.0)), None);
+        // Corners in either order; a rectangle off the grid touches nothing.
+        assert_eq!(f.rect_from_world(&Point2::new(0.6, 1.1), &Point2::new(-0.4, 0.1)), Some(CellRect::new(3, 0, 3, 1)));
+        assert_eq!(f.rect_from_world(&Point2::new(10.0, 10.0), &Point2::new(20.0, 20.0)), None);
+        assert_eq!(f.rect_from_world(&Point2::new(-9.0, 0.0), &Point2::new(-8.0, 1.0)), None);
+        // Cell arithmetic saturates instead of overflowing.
+        let huge = CellRect::spanning(Cell::new(i32::MIN, i32::MIN), Cell::new(i32::MAX, i32::MAX));
+        assert_eq!((huge.width, huge.height), (u32::MAX, u32::MAX));
+        assert_eq!(huge.x_end(), i32::MAX);
+        assert_eq!(huge.intersection(&f.bounds()), whole);
+        assert_eq!(CellRect::new(i32::MAX - 1, 0, 5, 5).grown(10).x_end(), i32::MAX);
     }
 
     #[test]

@@ -159,7 +159,8 @@ impl Coverage {
         }
     }
 
-    /// d_j of §4.2: the share of `rect` inside the union.
+    /// d_j of §4.2: the share of `rect` inside the union. `bounds` holds
+    /// every region's part on the map, so the share is of that part.
     fn overlap(&self, rect: &CellRect) -> f64 {
         let Some(r) = rect.intersection(&self.bounds) else { return 0.0 };
         let stride = self.bounds.width as usize + 1;
@@ -168,7 +169,7 @@ impl Coverage {
         let inside = self.sums[y1 * stride + x1] + self.sums[y0 * stride + x0]
             - self.sums[y0 * stride + x1]
             - self.sums[y1 * stride + x0];
-        f64::from(inside) / rect.area() as f64
+        f64::from(inside) / r.area() as f64
     }
 }
 
@@ -219,7 +220,13 @@ impl Policy for Simmons {
             })
             .collect();
         let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
-        let Some(bounds) = bids.iter().flat_map(|b| b.iter().map(|b| b.gain_region)).reduce(|a, b| a.union(&b)) else {
+        // Regions come from robots: only the part on the map counts, so the
+        // coverage below is never larger than the grid.
+        let Some(bounds) = bids
+            .iter()
+            .flat_map(|b| b.iter().filter_map(|b| grid.frame().clip(&b.gain_region)))
+            .reduce(|a, b| a.union(&b))
+        else {
             return Plan::of(targets);
         };
         let mut assigned = Coverage::new(bounds);
@@ -355,6 +362,38 @@ mod tests {
         ]);
         let robots = [robot(0, Cell::new(1, 1), 5.0), robot(1, Cell::new(3, 1), 5.0)];
         let targets = plan(&simmons(), &grid, &robots);
+        assert_eq!(targets.iter().filter(|t| t.is_some()).count(), 1, "{targets:?}");
+    }
+
+    /// A robot's bid region is its own claim: one spanning the whole `i32`
+    /// plane once made the coverage below allocate petabytes. Only the part
+    /// on the map counts.
+    #[test]
+    fn bid_regions_beyond_the_map_count_only_on_the_map() {
+        let grid = grid_from_picture(&[
+            "#####", //
+            "#???#", //
+            "#...#", //
+            "#####", //
+        ]);
+        let robots = [robot(0, Cell::new(1, 1), 5.0), robot(1, Cell::new(3, 1), 5.0)];
+        let everywhere = CellRect::spanning(Cell::new(i32::MIN, i32::MIN), Cell::new(i32::MAX, i32::MAX));
+        let bid =
+            |x| Bid { target: Cell::new(x, 1), path_cost_m: 0.1, information_gain: 100.0, gain_region: everywhere };
+        let bids = vec![vec![bid(1)], vec![bid(3)]];
+        let frontier = FrontierMap::detect(&grid);
+        let clusters = clusters(&frontier, 1);
+        let input = PlanningInput {
+            grid: &grid,
+            clusters: &clusters,
+            robots: &robots,
+            threads: 1,
+            bids: &bids,
+            seed: 0,
+            reserved: &[],
+        };
+        let targets = simmons().plan(&input, &mut CostCache::new(&grid)).targets;
+        // The first region covers the whole map, so the second bid is fully discounted.
         assert_eq!(targets.iter().filter(|t| t.is_some()).count(), 1, "{targets:?}");
     }
 
