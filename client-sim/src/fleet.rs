@@ -137,6 +137,8 @@ pub struct RunConfig {
     /// Operator token of the executive: the one `server` requires, or the
     /// one the embedded executive is started with (a random one if `None`).
     pub token: Option<String>,
+    /// TLS settings for `server` (an `https://` URL).
+    pub tls: Option<exploration_proto::client::ClientTls>,
     /// Database of the embedded executive; `None` uses a temporary file.
     pub db: Option<PathBuf>,
     /// Simulation cell size, metres; `None` keeps a map's own.
@@ -200,6 +202,7 @@ impl RunConfig {
             seed: 1,
             server: None,
             token: None,
+            tls: None,
             db: None,
             cell_size: Some(0.15),
             models: vec![DEFAULT_MODEL],
@@ -470,9 +473,11 @@ fn communication_clusters(robots: &[SimRobot], range_cells: f64) -> Vec<Vec<usiz
 
 async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<&str>) -> Result<RunReport, SimError> {
     let started = Instant::now();
-    let channel = tonic::transport::Endpoint::from_shared(url.to_owned())
-        .map_err(|e| SimError::Executive(format!("bad executive URL {url}: {e}")))?
-        .connect_timeout(Duration::from_secs(5))
+    if let Some(warning) = exploration_proto::client::plaintext_token_warning(url, token) {
+        tracing::warn!("{warning}");
+    }
+    let channel = exploration_proto::client::endpoint(url, config.tls.as_ref())
+        .map_err(|e| SimError::Executive(format!("bad executive URL or TLS settings for {url}: {e}")))?
         .connect_lazy();
     let bearer = exploration_proto::Bearer::new(token)
         .map_err(|e| SimError::Executive(format!("the token is not valid metadata: {e}")))?;
@@ -528,6 +533,7 @@ async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<
         robots.push(
             SimRobot::connect(
                 url,
+                config.tls.as_ref(),
                 token,
                 mission.id,
                 format!("robot-{i}"),

@@ -70,6 +70,36 @@ struct ReportArgs {
     configs: Vec<PathBuf>,
 }
 
+/// TLS towards an executive given by `--server https://…`.
+#[derive(Debug, Args)]
+struct TlsArgs {
+    /// PEM CA certificate(s) to trust for the executive's certificate
+    /// (default: the system's roots, for an `https://` server).
+    #[arg(long, env = "COORDINATOR_TLS_CA")]
+    tls_ca: Option<PathBuf>,
+    /// PEM client certificate, when the executive asks for one (mutual TLS).
+    #[arg(long, env = "COORDINATOR_TLS_CLIENT_CERT", requires = "tls_key")]
+    tls_cert: Option<PathBuf>,
+    /// PEM key of --tls-cert.
+    #[arg(long, env = "COORDINATOR_TLS_CLIENT_KEY", requires = "tls_cert")]
+    tls_key: Option<PathBuf>,
+}
+
+impl TlsArgs {
+    fn settings(&self) -> anyhow::Result<Option<exploration_proto::client::ClientTls>> {
+        if self.tls_ca.is_none() && self.tls_cert.is_none() {
+            return Ok(None);
+        }
+        let tls = exploration_proto::client::ClientTls::from_files(
+            self.tls_ca.as_deref(),
+            self.tls_cert.as_deref(),
+            self.tls_key.as_deref(),
+        )
+        .context("cannot read the TLS files")?;
+        Ok(Some(tls))
+    }
+}
+
 #[derive(Debug, Args)]
 struct RunArgs {
     /// ROS map_server YAML of the world to explore.
@@ -102,6 +132,8 @@ struct RunArgs {
     /// is started with (otherwise a random one only this run knows).
     #[arg(long, env = "COORDINATOR_OPERATOR_TOKEN", hide_env_values = true)]
     token: Option<String>,
+    #[command(flatten)]
+    tls: TlsArgs,
     /// Database file for the embedded executive (default: a temporary file).
     #[arg(long)]
     db: Option<PathBuf>,
@@ -258,6 +290,7 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
     config.seed = args.seed;
     config.server = args.server;
     config.token = args.token;
+    config.tls = args.tls.settings()?;
     config.db = args.db;
     config.cell_size = Some(args.cell_size);
     let base = RobotModel {

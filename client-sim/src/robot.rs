@@ -214,6 +214,7 @@ impl SimRobot {
     #[allow(clippy::too_many_arguments)]
     pub async fn connect(
         endpoint: &str,
+        tls: Option<&exploration_proto::client::ClientTls>,
         operator_token: Option<&str>,
         mission_id: u64,
         name: String,
@@ -226,9 +227,8 @@ impl SimRobot {
         retry_budget: Duration,
         stop: CancellationToken,
     ) -> Result<Self, RobotError> {
-        let channel = tonic::transport::Endpoint::from_shared(endpoint.to_owned())
+        let channel = exploration_proto::client::endpoint(endpoint, tls)
             .map_err(|e| RobotError::Rpc { what: "connect", status: Status::invalid_argument(e.to_string()) })?
-            .connect_timeout(Duration::from_secs(5))
             .tcp_nodelay(true)
             .connect_lazy();
         let bearer = |token: Option<&str>| {

@@ -16,7 +16,7 @@ use anyhow::{Context, anyhow, bail};
 use clap::{Parser, Subcommand};
 use tonic::Code;
 use tonic::service::interceptor::InterceptedService;
-use tonic::transport::{Channel, Endpoint};
+use tonic::transport::Channel;
 
 use exploration_proto::Bearer;
 use exploration_proto::v1 as pb;
@@ -32,9 +32,20 @@ struct Cli {
     /// The operator token (see `coordinator --operator-token`).
     #[arg(long, global = true, env = "COORDINATOR_TOKEN", hide_env_values = true)]
     token: Option<String>,
-    /// Your name, recorded with every change you make.
+    /// Your name, recorded with every change you make on an executive that
+    /// runs open; one that checks tokens records the name of your token.
     #[arg(long = "as", global = true, env = "USER", default_value = "operator")]
     actor: String,
+    /// PEM CA certificate(s) to trust for an `https://` executive (default:
+    /// the system's roots).
+    #[arg(long, global = true, env = "COORDINATOR_TLS_CA")]
+    tls_ca: Option<std::path::PathBuf>,
+    /// PEM client certificate, when the executive asks for one (mutual TLS).
+    #[arg(long, global = true, env = "COORDINATOR_TLS_CLIENT_CERT", requires = "tls_key")]
+    tls_cert: Option<std::path::PathBuf>,
+    /// PEM key of --tls-cert.
+    #[arg(long, global = true, env = "COORDINATOR_TLS_CLIENT_KEY", requires = "tls_cert")]
+    tls_key: Option<std::path::PathBuf>,
     /// Print JSON instead of tables.
     #[arg(long, global = true)]
     json: bool,
@@ -277,7 +288,21 @@ impl std::fmt::Display for Usage {
 impl std::error::Error for Usage {}
 
 async fn connect(cli: &Cli) -> anyhow::Result<Missions> {
-    let channel = Endpoint::from_shared(cli.server.clone())
+    if let Some(warning) = exploration_proto::client::plaintext_token_warning(&cli.server, cli.token.as_deref()) {
+        eprintln!("warning: {warning}");
+    }
+    let tls = match (&cli.tls_ca, &cli.tls_cert) {
+        (None, None) => None,
+        _ => Some(
+            exploration_proto::client::ClientTls::from_files(
+                cli.tls_ca.as_deref(),
+                cli.tls_cert.as_deref(),
+                cli.tls_key.as_deref(),
+            )
+            .map_err(|e| Usage(format!("TLS files: {e}")))?,
+        ),
+    };
+    let channel = exploration_proto::client::endpoint(&cli.server, tls.as_ref())
         .map_err(|e| Usage(format!("--server {}: {e}", cli.server)))?
         .connect()
         .await

@@ -10,13 +10,14 @@ use exploration_proto::Bearer;
 use exploration_proto::v1 as pb;
 use exploration_proto::v1::fleet_client::FleetClient;
 
-const TOKEN: &str = "ops-token";
+/// Alice's operator token.
+const TOKEN: &str = "alice-ops-token-0123";
 
 /// Runs coordctl with `args` against `url` (with the operator token unless
 /// `token` says otherwise), off the async runtime.
 async fn coordctl(url: &str, token: Option<&str>, args: &[&str]) -> Output {
     let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_coordctl"));
-    command.env_remove("COORDINATOR_TOKEN").env("COORDINATOR_URL", url).arg("--as").arg("alice").args(args);
+    command.env_remove("COORDINATOR_TOKEN").env("COORDINATOR_URL", url).arg("--as").arg("someone-else").args(args);
     if let Some(token) = token {
         command.env("COORDINATOR_TOKEN", token);
     }
@@ -35,7 +36,9 @@ async fn an_operator_lists_overrides_forbids_and_exports_the_map() {
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let url = format!("http://{}", listener.local_addr().unwrap());
     let mut config = coordinator::Config::new(dir.path().join("ctl.db"));
-    config.operator_token = Some(TOKEN.into());
+    let tokens = dir.path().join("tokens");
+    std::fs::write(&tokens, format!("alice operator {}\n", coordinator::auth::sha256_hex(TOKEN))).unwrap();
+    config.operator_tokens_file = Some(tokens);
     let stop = CancellationToken::new();
     let server = tokio::spawn(coordinator::run(listener, stop.clone().cancelled_owned(), config));
 

@@ -13,6 +13,59 @@ pub mod v1 {
     pub const FILE_DESCRIPTOR_SET: &[u8] = tonic::include_file_descriptor_set!("exploration_v1_descriptor");
 }
 
+/// Prost's codec, except that a message that is not valid protobuf is
+/// INVALID_ARGUMENT (the sender's error), not INTERNAL.
+pub mod codec {
+    use tonic::Status;
+    use tonic::codec::{BufferSettings, DecodeBuf, Decoder};
+    use tonic_prost::{ProstCodec, ProstDecoder, ProstEncoder};
+
+    /// See the module.
+    #[derive(Debug, Clone, Default)]
+    pub struct Codec<T, U>(ProstCodec<T, U>);
+
+    impl<T, U> tonic::codec::Codec for Codec<T, U>
+    where
+        T: prost::Message + Send + 'static,
+        U: prost::Message + Default + Send + 'static,
+    {
+        type Encode = T;
+        type Decode = U;
+        type Encoder = ProstEncoder<T>;
+        type Decoder = StrictDecoder<U>;
+
+        fn encoder(&mut self) -> Self::Encoder {
+            self.0.encoder()
+        }
+
+        fn decoder(&mut self) -> Self::Decoder {
+            StrictDecoder(self.0.decoder())
+        }
+    }
+
+    /// See the module.
+    #[derive(Debug, Clone)]
+    pub struct StrictDecoder<U>(ProstDecoder<U>);
+
+    impl<U: prost::Message + Default> Decoder for StrictDecoder<U> {
+        type Item = U;
+        type Error = Status;
+
+        fn decode(&mut self, buf: &mut DecodeBuf<'_>) -> Result<Option<U>, Status> {
+            self.0.decode(buf).map_err(|status| {
+                Status::invalid_argument(format!(
+                    "the message is not a valid protobuf encoding of the call's request: {}",
+                    status.message()
+                ))
+            })
+        }
+
+        fn buffer_settings(&self) -> BufferSettings {
+            self.0.buffer_settings()
+        }
+    }
+}
+
 /// Client-side bearer authentication: adds `authorization: Bearer <token>`
 /// to every request, or nothing without a token. Use with
 /// `XClient::with_interceptor(channel, Bearer::new(token)?)`.
@@ -35,5 +88,107 @@ impl tonic::service::Interceptor for Bearer {
             request.metadata_mut().insert("authorization", value.clone());
         }
         Ok(request)
+    }
+}
+
+/// How the project's clients reach an executive: plaintext or TLS, with the
+/// CA to trust and, for mutual TLS, the client's own certificate.
+pub mod client {
+    use std::time::Duration;
+
+    use tonic::transport::{Certificate, ClientTlsConfig, Endpoint, Identity};
+
+    /// TLS settings of a client.
+    #[derive(Clone, Default)]
+    pub struct ClientTls {
+        /// PEM CA certificates to trust; the system's roots when `None`.
+        pub ca_pem: Option<Vec<u8>>,
+        /// PEM certificate and key to present (mutual TLS).
+        pub identity: Option<(Vec<u8>, Vec<u8>)>,
+    }
+
+    impl std::fmt::Debug for ClientTls {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.debug_struct("ClientTls")
+                .field("ca", &self.ca_pem.is_some())
+                .field("identity", &self.identity.is_some())
+                .finish()
+        }
+    }
+
+    impl ClientTls {
+        /// Reads the PEM files named by `--tls-ca`, `--tls-cert` and `--tls-key`.
+        pub fn from_files(
+            ca: Option<&std::path::Path>,
+            cert: Option<&std::path::Path>,
+            key: Option<&std::path::Path>,
+        ) -> std::io::Result<Self> {
+            let read = |path: &std::path::Path| {
+                std::fs::read(path).map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))
+            };
+            let identity = match (cert, key) {
+                (Some(cert), Some(key)) => Some((read(cert)?, read(key)?)),
+                (None, None) => None,
+                _ => {
+                    return Err(std::io::Error::new(
+                        std::io::ErrorKind::InvalidInput,
+                        "a client certificate needs both --tls-cert and --tls-key",
+                    ));
+                }
+            };
+            Ok(Self { ca_pem: ca.map(read).transpose()?, identity })
+        }
+    }
+
+    /// An endpoint for `url`: TLS when the URL is `https://` or `tls` is
+    /// given (then the URL must be `https://`).
+    pub fn endpoint(url: &str, tls: Option<&ClientTls>) -> Result<Endpoint, tonic::transport::Error> {
+        let endpoint = Endpoint::from_shared(url.to_owned())?.connect_timeout(Duration::from_secs(5));
+        if tls.is_none() && !url.starts_with("https://") {
+            return Ok(endpoint);
+        }
+        let mut config = ClientTlsConfig::new();
+        match tls.and_then(|t| t.ca_pem.as_ref()) {
+            Some(ca) => config = config.ca_certificate(Certificate::from_pem(ca)),
+            None => config = config.with_native_roots(),
+        }
+        if let Some((cert, key)) = tls.and_then(|t| t.identity.as_ref()) {
+            config = config.identity(Identity::from_pem(cert, key));
+        }
+        endpoint.tls_config(config)
+    }
+
+    /// A warning to print when a bearer token would cross a network in
+    /// plaintext: a token, an `http://` URL, and a host that is not loopback.
+    pub fn plaintext_token_warning(url: &str, token: Option<&str>) -> Option<String> {
+        token.filter(|t| !t.trim().is_empty())?;
+        let rest = url.strip_prefix("http://")?;
+        let host = rest.split(['/', '?']).next().unwrap_or("");
+        let host = match host.strip_prefix('[') {
+            Some(v6) => v6.split(']').next().unwrap_or(""),
+            None => host.rsplit_once(':').map_or(host, |(h, _)| h),
+        };
+        let loopback =
+            host.eq_ignore_ascii_case("localhost") || host.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback());
+        (!loopback).then(|| {
+            format!("the bearer token will cross the network to {host} in plaintext: use https:// and --tls-ca")
+        })
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use super::*;
+
+        #[test]
+        fn tokens_over_plaintext_to_other_hosts_are_flagged() {
+            let token = Some("t0ken");
+            assert!(plaintext_token_warning("http://10.0.0.5:50051", token).is_some());
+            assert!(plaintext_token_warning("http://robots.example:50051/", token).is_some());
+            assert!(plaintext_token_warning("http://127.0.0.1:50051", token).is_none());
+            assert!(plaintext_token_warning("http://[::1]:50051", token).is_none());
+            assert!(plaintext_token_warning("http://localhost:50051", token).is_none());
+            assert!(plaintext_token_warning("https://10.0.0.5:50051", token).is_none());
+            assert!(plaintext_token_warning("http://10.0.0.5:50051", None).is_none());
+        }
     }
 }

@@ -3,7 +3,7 @@
 use exploration::fusion::PatchError;
 use exploration::policy::PolicyError;
 
-use crate::store::StoreError;
+use crate::store::{FailureKind, StoreError};
 
 /// Everything that can go wrong in a request. The message of every variant
 /// but [`Error::Store`] and [`Error::Internal`] is written for the client: it
@@ -48,6 +48,12 @@ impl From<PatchError> for Error {
     }
 }
 
+impl From<crate::validate::Invalid> for Error {
+    fn from(e: crate::validate::Invalid) -> Self {
+        Self::InvalidArgument(e.to_string())
+    }
+}
+
 impl From<PolicyError> for Error {
     fn from(e: PolicyError) -> Self {
         Self::InvalidArgument(e.to_string())
@@ -69,7 +75,19 @@ impl From<Error> for tonic::Status {
             // Internals are logged here, once, and never shown to the client.
             Error::Store(cause) => {
                 tracing::error!(error = %cause, "store failure");
-                Status::internal("internal error: the executive could not persist or read state; it logged the cause")
+                match cause.kind() {
+                    FailureKind::Full => Status::resource_exhausted(
+                        "the executive's disk is full: nothing of this request was written; reads still work, \
+                         and writes will once space is freed (retry later)",
+                    ),
+                    FailureKind::Transient => Status::unavailable(
+                        "the executive could not write to its database just now: nothing of this request was \
+                         written; retry",
+                    ),
+                    FailureKind::Internal => Status::internal(
+                        "internal error: the executive could not persist or read state; it logged the cause",
+                    ),
+                }
             }
             Error::Internal(cause) => {
                 tracing::error!(error = %cause, "internal failure");

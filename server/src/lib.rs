@@ -15,7 +15,7 @@
 //! resolves, so tests bind port 0 and binaries bind what they are told.
 
 use std::future::Future;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use tokio::net::TcpListener;
@@ -25,13 +25,16 @@ use exploration_proto::v1 as pb;
 
 pub mod auth;
 pub mod clock;
+pub mod connections;
 pub mod domain;
 pub mod error;
 pub mod executive;
 pub mod service;
 pub mod store;
+pub mod validate;
 
 pub use clock::{Clock, ManualClock};
+pub use connections::ConnectionLimits;
 pub use executive::{Executive, ExecutiveSettings};
 pub use store::sqlite::{Durability, SqliteStore};
 
@@ -44,8 +47,15 @@ pub struct Config {
     pub durability: Durability,
     /// Limits and knobs.
     pub executive: ExecutiveSettings,
-    /// The operator token; without one the executive runs open (no token checked).
+    /// The operator token (named "operator"); without it and without a
+    /// tokens file the executive runs open (no token checked).
     pub operator_token: Option<String>,
+    /// A file of named operator and viewer tokens, reread when it changes.
+    pub operator_tokens_file: Option<PathBuf>,
+    /// Serve TLS instead of plaintext.
+    pub tls: Option<TlsConfig>,
+    /// Connection limits: how many at once, when an idle one is closed.
+    pub connections: ConnectionLimits,
 }
 
 impl Config {
@@ -56,7 +66,38 @@ impl Config {
             durability: Durability::default(),
             executive: ExecutiveSettings::default(),
             operator_token: None,
+            operator_tokens_file: None,
+            tls: None,
+            connections: ConnectionLimits::default(),
         }
+    }
+}
+
+/// The executive's certificate and key, and the CA that client certificates
+/// must chain to when robots must present one (mutual TLS).
+#[derive(Clone)]
+pub struct TlsConfig {
+    /// PEM certificate chain.
+    pub cert_pem: Vec<u8>,
+    /// PEM private key.
+    pub key_pem: Vec<u8>,
+    /// PEM CA certificates for client certificates; `None`: none asked for.
+    pub client_ca_pem: Option<Vec<u8>>,
+}
+
+impl std::fmt::Debug for TlsConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TlsConfig").field("client_ca", &self.client_ca_pem.is_some()).finish_non_exhaustive()
+    }
+}
+
+impl TlsConfig {
+    /// Reads the PEM files.
+    pub fn from_files(cert: &Path, key: &Path, client_ca: Option<&Path>) -> std::io::Result<Self> {
+        let read = |path: &Path| {
+            std::fs::read(path).map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))
+        };
+        Ok(Self { cert_pem: read(cert)?, key_pem: read(key)?, client_ca_pem: client_ca.map(read).transpose()? })
     }
 }
 
@@ -69,6 +110,9 @@ pub enum ServeError {
     /// Missions could not be restored.
     #[error("could not restore missions: {0}")]
     Restore(#[from] error::Error),
+    /// The operator tokens are unusable.
+    #[error("{0}")]
+    Tokens(#[from] auth::TokensError),
     /// The reflection service could not be built.
     #[error("could not build the reflection service: {0}")]
     Reflection(#[from] tonic_reflection::server::Error),
@@ -104,22 +148,25 @@ pub async fn run(
     shutdown: impl Future<Output = ()> + Send + 'static,
     config: Config,
 ) -> Result<(), ServeError> {
+    let auth = auth::Authenticator::new(config.operator_token.as_deref(), config.operator_tokens_file.as_deref())?;
+    let address = listener.local_addr().ok();
+    warn_about_exposure(&auth, address, config.tls.is_some());
     let store = SqliteStore::open(&config.db_path, config.durability).await?;
-    let executive = Arc::new(Executive::open(Arc::new(store.clone()), config.executive).await?);
-    let streams_end = CancellationToken::new();
-    let auth = match config.operator_token.as_deref().map(str::trim).filter(|t| !t.is_empty()) {
-        Some(token) => auth::Authenticator::with_operator_token(token),
-        None => {
-            tracing::warn!("no operator token configured: every caller may administer missions (open mode)");
-            auth::Authenticator::open()
+    let executive = match Executive::open(Arc::new(store.clone()), config.executive).await {
+        Ok(executive) => Arc::new(executive),
+        Err(e) => {
+            store.close().await;
+            return Err(e.into());
         }
     };
+    let streams_end = CancellationToken::new();
     let sweeper = tokio::spawn(sweep_until(executive.clone(), streams_end.clone()));
-    let service = service::ExplorationService::new(executive, auth, streams_end.clone());
+    let (missions, fleet) =
+        service::ExplorationService::new(executive, streams_end.clone()).into_servers(auth, MAX_MESSAGE_BYTES);
 
     let (health, health_service) = tonic_health::server::health_reporter();
-    health.set_serving::<pb::missions_server::MissionsServer<service::ExplorationService>>().await;
-    health.set_serving::<pb::fleet_server::FleetServer<service::ExplorationService>>().await;
+    health.set_serving::<service::MissionsService>().await;
+    health.set_serving::<service::FleetService>().await;
     let reflection = tonic_reflection::server::Builder::configure()
         .register_encoded_file_descriptor_set(pb::FILE_DESCRIPTOR_SET)
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
@@ -129,34 +176,62 @@ pub async fn run(
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
         .build_v1alpha()?;
 
-    let address = listener.local_addr().ok();
-    tracing::info!(?address, db = %config.db_path.display(), "executive serving");
-    let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
+    tracing::info!(?address, db = %config.db_path.display(), tls = config.tls.is_some(), "executive serving");
+    let incoming = connections::Incoming::new(listener, config.connections.clone());
     let drain = {
         let health = health.clone();
         let streams_end = streams_end.clone();
         async move {
             shutdown.await;
             tracing::info!("shutting down: draining requests");
-            health.set_not_serving::<pb::fleet_server::FleetServer<service::ExplorationService>>().await;
+            health.set_not_serving::<service::FleetService>().await;
             streams_end.cancel();
         }
     };
-    tonic::transport::Server::builder()
+    let mut server = tonic::transport::Server::builder()
+        // Dead peers are found by TCP keepalive; idle live ones are closed by `connections`.
+        .tcp_keepalive(Some(std::time::Duration::from_secs(30)))
+        .tcp_nodelay(true);
+    if let Some(tls) = &config.tls {
+        let mut settings = tonic::transport::ServerTlsConfig::new()
+            .identity(tonic::transport::Identity::from_pem(&tls.cert_pem, &tls.key_pem));
+        if let Some(ca) = &tls.client_ca_pem {
+            settings = settings.client_ca_root(tonic::transport::Certificate::from_pem(ca));
+        }
+        server = server.tls_config(settings)?;
+    }
+    let served = server
+        .layer(connections::ActivityLayer)
         .add_service(health_service)
         .add_service(reflection)
         .add_service(reflection_alpha)
-        .add_service(
-            pb::missions_server::MissionsServer::new(service.clone()).max_decoding_message_size(MAX_MESSAGE_BYTES),
-        )
-        .add_service(pb::fleet_server::FleetServer::new(service).max_decoding_message_size(MAX_MESSAGE_BYTES))
+        .add_service(missions)
+        .add_service(fleet)
         .serve_with_incoming_shutdown(incoming, drain)
-        .await?;
+        .await;
     streams_end.cancel();
     if let Err(e) = sweeper.await {
         tracing::error!(error = %e, "lease sweeper failed");
     }
     store.close().await;
+    served?;
     tracing::info!("executive stopped");
     Ok(())
+}
+
+/// Says in the log when callers are not checked, or when their tokens would
+/// cross a network in plaintext.
+fn warn_about_exposure(auth: &auth::Authenticator, address: Option<std::net::SocketAddr>, tls: bool) {
+    let loopback = address.is_some_and(|a| a.ip().is_loopback());
+    if auth.is_open() {
+        tracing::warn!(
+            "no operator token configured: every caller may administer missions (open mode){}",
+            if loopback { "" } else { "; this address is reachable from other machines" }
+        );
+    } else if !tls && !loopback {
+        tracing::warn!(
+            ?address,
+            "bearer tokens will cross the network in plaintext: serve with --tls-cert and --tls-key"
+        );
+    }
 }

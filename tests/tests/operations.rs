@@ -24,26 +24,37 @@ use exploration_proto::v1::fleet_client::FleetClient;
 use exploration_proto::v1::missions_client::MissionsClient;
 use exploration_proto::v1::override_robot_request::{Action, Cancel, Hold, Release};
 
-const OPERATOR: &str = "operator-secret";
+/// Alice's operator token; Kim holds a viewer's.
+const OPERATOR: &str = "alice-operator-secret";
+const VIEWER: &str = "kim-viewer-secret-0000";
 
 type Missions = MissionsClient<InterceptedService<Channel, Bearer>>;
 type Fleet = FleetClient<InterceptedService<Channel, Bearer>>;
 
-/// An executive that requires tokens and keeps time by hand.
+/// An executive that requires named tokens and keeps time by hand.
 struct Site {
     exec: TestExecutive,
     clock: Arc<ManualClock>,
+    tokens: std::path::PathBuf,
     _dir: tempfile::TempDir,
+}
+
+/// A line of the tokens file.
+fn token_line(name: &str, role: &str, token: &str) -> String {
+    format!("{name} {role} {}\n", coordinator::auth::sha256_hex(token))
 }
 
 impl Site {
     async fn start() -> Self {
         let dir = tempfile::tempdir().unwrap();
         let (clock, handle) = Clock::manual();
+        let tokens = dir.path().join("tokens");
+        std::fs::write(&tokens, token_line("alice", "operator", OPERATOR) + &token_line("kim", "viewer", VIEWER))
+            .unwrap();
         let mut config = coordinator::Config::new(dir.path().join("ops.db"));
-        config.operator_token = Some(OPERATOR.into());
+        config.operator_tokens_file = Some(tokens.clone());
         config.executive.clock = clock;
-        Self { exec: TestExecutive::start_with(config).await, clock: handle, _dir: dir }
+        Self { exec: TestExecutive::start_with(config).await, clock: handle, tokens, _dir: dir }
     }
 
     fn missions(&self, token: Option<&str>) -> Missions {
@@ -260,10 +271,11 @@ async fn operator_overrides_take_a_robot_out_of_the_pool_and_give_it_back() {
     site.until(mission.id, "both assigned", |v| v.robots.iter().all(|r| r.task_id != 0)).await;
     let mut operator = site.operator();
     let mut act = async |robot_id: u64, action: Action| {
+        // The request claims another name: the record names the token's holder.
         let request = pb::OverrideRobotRequest {
             robot_id,
             action: Some(action),
-            actor: "alice".into(),
+            actor: "mallory".into(),
             reason: "checking".into(),
         };
         operator.override_robot(request).await.unwrap().into_inner()
@@ -434,6 +446,18 @@ async fn tokens_are_checked_and_refused_requests_change_nothing() {
     for status in &denied {
         assert_eq!(status.code(), Code::PermissionDenied, "{status:?}");
     }
+    // A viewer reads and changes nothing.
+    let mut kim = site.missions(Some(VIEWER));
+    kim.list_robots(pb::ListRobotsRequest { mission_id: mission.id }).await.unwrap();
+    let refused = kim.pause_mission(pb::MissionControlRequest { mission_id: mission.id, ..Default::default() }).await;
+    assert_eq!(refused.unwrap_err().code(), Code::PermissionDenied);
+    let refused = site.fleet(Some(VIEWER)).heartbeat(heartbeat(a.id, 9.0, 9.0, pb::RobotState::Idle, 0)).await;
+    assert_eq!(refused.unwrap_err().code(), Code::PermissionDenied);
+    // Revoked by taking its line out of the file: refused at once, no restart.
+    std::fs::write(&site.tokens, token_line("alice", "operator", OPERATOR)).unwrap();
+    let revoked = kim.list_missions(pb::ListMissionsRequest {}).await.unwrap_err();
+    assert_eq!(revoked.code(), Code::Unauthenticated);
+
     // The old token stopped working when the robot registered again.
     let status = fleet_a.heartbeat(heartbeat(a.id, 2.5, 1.0, pb::RobotState::Idle, 0)).await.unwrap_err();
     assert_eq!(status.code(), Code::Unauthenticated, "a replaced robot token is refused: {status:?}");

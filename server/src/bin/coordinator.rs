@@ -7,7 +7,9 @@ use anyhow::Context;
 use clap::{Parser, ValueEnum};
 use tracing_subscriber::EnvFilter;
 
-use coordinator::{Config, Durability, ExecutiveSettings};
+use std::time::Duration;
+
+use coordinator::{Config, ConnectionLimits, Durability, ExecutiveSettings, TlsConfig};
 
 /// The exploration executive: coordinates robot fleets exploring unknown buildings.
 #[derive(Debug, Parser)]
@@ -26,11 +28,34 @@ struct Args {
     /// Threads a replanning may use (default: all cores).
     #[arg(long, env = "COORDINATOR_PLANNER_THREADS")]
     planner_threads: Option<usize>,
-    /// The operator token: required for mission administration and
-    /// overrides; robots then need the tokens their registration returns.
-    /// Without it the executive runs open (every caller may do everything).
+    /// The operator token (at least 16 characters), recorded as "operator":
+    /// required for mission administration and overrides; robots then need
+    /// the tokens their registration returns. Without it and without
+    /// --operator-tokens the executive runs open (every caller may do everything).
     #[arg(long, env = "COORDINATOR_OPERATOR_TOKEN", hide_env_values = true)]
     operator_token: Option<String>,
+    /// A file of named tokens, one `NAME ROLE SHA256` per line (ROLE is
+    /// `operator` or `viewer`; SHA256 is `printf %s TOKEN | sha256sum`). The
+    /// name is recorded as who acted. Reread when it changes: a token is
+    /// revoked by removing its line.
+    #[arg(long, env = "COORDINATOR_OPERATOR_TOKENS")]
+    operator_tokens: Option<PathBuf>,
+    /// PEM certificate chain to serve TLS with (needs --tls-key).
+    #[arg(long, env = "COORDINATOR_TLS_CERT", requires = "tls_key")]
+    tls_cert: Option<PathBuf>,
+    /// PEM private key of --tls-cert.
+    #[arg(long, env = "COORDINATOR_TLS_KEY", requires = "tls_cert")]
+    tls_key: Option<PathBuf>,
+    /// PEM CA certificates: clients must present a certificate signed by one
+    /// of them (mutual TLS).
+    #[arg(long, env = "COORDINATOR_TLS_CLIENT_CA", requires = "tls_cert")]
+    tls_client_ca: Option<PathBuf>,
+    /// Most connections held at once; more are closed as they arrive.
+    #[arg(long, env = "COORDINATOR_MAX_CONNECTIONS", default_value_t = 10_000)]
+    max_connections: usize,
+    /// Seconds after which a connection with no open call is closed.
+    #[arg(long, env = "COORDINATOR_IDLE_TIMEOUT", default_value_t = 300.0)]
+    idle_timeout: f64,
     /// Log format.
     #[arg(long, env = "COORDINATOR_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     log_format: LogFormat,
@@ -61,6 +86,21 @@ async fn main() -> anyhow::Result<()> {
         .with_context(|| format!("cannot listen on {}", args.listen))?;
     let mut config = Config::new(args.db);
     config.operator_token = args.operator_token;
+    config.operator_tokens_file = args.operator_tokens;
+    if let (Some(cert), Some(key)) = (&args.tls_cert, &args.tls_key) {
+        config.tls = Some(
+            TlsConfig::from_files(cert, key, args.tls_client_ca.as_deref())
+                .context("cannot read the TLS certificate, key or client CA")?,
+        );
+    }
+    anyhow::ensure!(
+        args.idle_timeout.is_finite() && args.idle_timeout > 0.0 && args.idle_timeout <= 1e6,
+        "--idle-timeout must be a number of seconds in (0, 1e6]"
+    );
+    config.connections = ConnectionLimits {
+        max_connections: args.max_connections.max(1),
+        idle_timeout: Duration::from_secs_f64(args.idle_timeout),
+    };
     config.durability = match args.durability {
         DurabilityArg::Full => Durability::Full,
         DurabilityArg::Normal => Durability::Normal,

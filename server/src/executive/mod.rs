@@ -56,6 +56,42 @@ impl Default for ExecutiveSettings {
     }
 }
 
+/// The missions and grid cells an executive holds, against its limits.
+#[derive(Debug)]
+struct Usage(std::sync::Mutex<(usize, u64)>);
+
+impl Usage {
+    fn new(missions: usize, cells: u64) -> Self {
+        Self(std::sync::Mutex::new((missions, cells)))
+    }
+
+    /// Takes one mission of `cells` cells, or says which limit it would pass.
+    fn reserve(&self, cells: u64, settings: &ExecutiveSettings) -> Result<(), Error> {
+        let mut usage = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let (missions, total) = *usage;
+        if missions >= settings.max_missions {
+            return Err(Error::ResourceExhausted(format!(
+                "this executive already holds {missions} missions, its limit"
+            )));
+        }
+        if total + cells > settings.max_total_cells {
+            return Err(Error::ResourceExhausted(format!(
+                "a {cells}-cell map would take this executive past its limit of {} cells over all missions \
+                 ({total} in use)",
+                settings.max_total_cells
+            )));
+        }
+        *usage = (missions + 1, total + cells);
+        Ok(())
+    }
+
+    /// Gives back a reservation whose mission was not made.
+    fn release(&self, cells: u64) {
+        let mut usage = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        *usage = (usage.0.saturating_sub(1), usage.1.saturating_sub(cells));
+    }
+}
+
 /// How often leases and stalls are checked.
 pub const SWEEP_PERIOD: std::time::Duration = std::time::Duration::from_millis(500);
 
@@ -120,7 +156,7 @@ pub struct Executive {
     robot_missions: RwLock<HashMap<RobotId, MissionId>>,
     next_task_id: AtomicU64,
     next_region_id: AtomicU64,
-    total_cells: AtomicU64,
+    usage: Usage,
     /// Each robot's token hash.
     tokens: RwLock<HashMap<RobotId, String>>,
 }
@@ -134,8 +170,8 @@ impl Executive {
         let now = settings.clock.now();
         for record in store.missions().await? {
             let id = record.id;
-            let robots = store.robots(id).await?;
-            let patches = store.patches(id).await?;
+            let robots = store.robots(&record).await?;
+            let patches = store.patches(&record).await?;
             let open_tasks = store.open_tasks(id).await?;
             let blacklist = store.blacklist(id).await?;
             let forbidden = store.forbidden_regions(id).await?;
@@ -161,6 +197,7 @@ impl Executive {
             }
             missions.insert(id, Arc::new(Mutex::new(mission)));
         }
+        let missions_count = missions.len();
         let next_task_id = store.max_task_id().await?;
         let next_region_id = store.max_region_id().await?;
         let tokens = store.robot_tokens().await?.into_iter().collect();
@@ -171,7 +208,7 @@ impl Executive {
             robot_missions: RwLock::new(robot_missions),
             next_task_id: AtomicU64::new(next_task_id),
             next_region_id: AtomicU64::new(next_region_id),
-            total_cells: AtomicU64::new(total_cells),
+            usage: Usage::new(missions_count, total_cells),
             tokens: RwLock::new(tokens),
         })
     }
@@ -213,27 +250,19 @@ impl Executive {
     /// Creates a mission.
     pub async fn create_mission(&self, spec: MissionSpec) -> Result<MissionSummary, Error> {
         let cells = spec.frame.len() as u64;
-        {
-            let missions = self.missions.read().unwrap_or_else(|e| e.into_inner());
-            if missions.len() >= self.settings.max_missions {
-                return Err(Error::ResourceExhausted(format!(
-                    "this executive already holds {} missions, its limit",
-                    missions.len()
-                )));
+        // Reserved before the store is asked, so that simultaneous calls
+        // cannot all pass the check; given back if the mission is not made.
+        self.usage.reserve(cells, &self.settings)?;
+        let record = match self.store.create_mission(&spec, Timestamp::now()).await {
+            Ok(record) => record,
+            Err(e) => {
+                self.usage.release(cells);
+                return Err(e.into());
             }
-        }
-        let total = self.total_cells.load(Ordering::Relaxed);
-        if total + cells > self.settings.max_total_cells {
-            return Err(Error::ResourceExhausted(format!(
-                "a {cells}-cell map would take this executive past its limit of {} cells over all missions ({} in use)",
-                self.settings.max_total_cells, total
-            )));
-        }
-        let record = self.store.create_mission(&spec, Timestamp::now()).await?;
+        };
         tracing::info!(mission = record.id, policy = record.spec.policy.name(), cells, "mission created");
         let mission = Mission::new(record.clone(), self.settings.clock.now());
         let summary = Self::summary(&mission);
-        self.total_cells.fetch_add(cells, Ordering::Relaxed);
         self.missions.write().unwrap_or_else(|e| e.into_inner()).insert(record.id, Arc::new(Mutex::new(mission)));
         Ok(summary)
     }
@@ -276,12 +305,19 @@ impl Executive {
             resumed.capabilities = spec.capabilities;
             resumed.last_seen = Timestamp::now();
             resumed.lost = false;
-            let (token, hash) = crate::auth::issue_robot_token(resumed.id)?;
-            self.store.set_robot_token(resumed.id, &hash).await?;
-            let changes = Changeset { robots: vec![resumed.clone()], ..Changeset::default() };
+            let secret = crate::auth::RobotSecret::new()?;
+            let hash = secret.token_hash(resumed.id);
+            // The new token and the record in one commit: a robot is never
+            // left with a token it was not given.
+            let changes = Changeset {
+                robots: vec![resumed.clone()],
+                robot_tokens: vec![(resumed.id, hash.clone())],
+                ..Changeset::default()
+            };
             self.store.commit(&changes).await?;
             self.tokens.write().unwrap_or_else(|e| e.into_inner()).insert(resumed.id, hash);
             mission.apply(changes);
+            let token = secret.token(resumed.id);
             mission.heard_from(resumed.id, self.settings.clock.now());
             tracing::info!(mission = mission_id, robot = resumed.id, name = %resumed.name, "robot resumed");
             return Ok((resumed, token, true));
@@ -298,12 +334,12 @@ impl Executive {
                 spec.pose.position.x, spec.pose.position.y
             )));
         }
-        // The token names the robot, whose identity the store gives: the
-        // row starts without a hash and gets it before anyone can use it.
-        let record = self.store.create_robot(mission_id, &spec, "", Timestamp::now()).await?;
-        let (token, hash) = crate::auth::issue_robot_token(record.id)?;
-        self.store.set_robot_token(record.id, &hash).await?;
-        self.tokens.write().unwrap_or_else(|e| e.into_inner()).insert(record.id, hash);
+        // The token names the robot, whose identity the store gives inside
+        // the transaction that stores the token's hash.
+        let secret = crate::auth::RobotSecret::new()?;
+        let record = self.store.create_robot(mission_id, &spec, &|id| secret.token_hash(id), Timestamp::now()).await?;
+        let token = secret.token(record.id);
+        self.tokens.write().unwrap_or_else(|e| e.into_inner()).insert(record.id, secret.token_hash(record.id));
         tracing::info!(mission = mission_id, robot = record.id, name = %record.name, "robot registered");
         mission.insert_robot(record.clone(), self.settings.clock.now());
         self.robot_missions.write().unwrap_or_else(|e| e.into_inner()).insert(record.id, mission_id);
@@ -351,8 +387,10 @@ impl Executive {
     pub async fn submit_bids(&self, robot_id: RobotId, bids: Vec<Bid>) -> Result<(usize, Assignment), Error> {
         let handle = self.mission_of_robot(robot_id)?;
         let mut mission = handle.lock().await;
-        mission.robot(robot_id)?;
-        self.store.replace_bids(robot_id, &bids, Timestamp::now()).await?;
+        mission.check_bids(robot_id, &bids)?;
+        let changes =
+            Changeset { bids: Some((robot_id, bids.clone())), at: Some(Timestamp::now()), ..Changeset::default() };
+        self.store.commit(&changes).await?;
         mission.set_bids(robot_id, &bids);
         mission.heard_from(robot_id, self.settings.clock.now());
         self.replan_if_due(&mut mission).await?;
@@ -494,10 +532,11 @@ impl Executive {
     ) -> Result<Region, Error> {
         let handle = self.mission_handle(mission_id)?;
         let mut mission = handle.lock().await;
-        let id = self.next_region_id.load(Ordering::Relaxed) + 1;
+        // Reserved atomically: calls on other missions run at the same time.
+        // A refused or failed call leaves a gap, never a repeat.
+        let id = self.next_region_id.fetch_add(1, Ordering::Relaxed) + 1;
         let (changes, region) = mission.prepare_forbid(id, min, max, &note, Timestamp::now())?;
         self.commit(&mut mission, changes).await?;
-        self.next_region_id.store(id, Ordering::Relaxed);
         tracing::info!(mission = mission_id, region = id, actor = %note.actor, "region forbidden");
         self.replan_if_due(&mut mission).await?;
         Ok(region)

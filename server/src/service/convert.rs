@@ -11,6 +11,7 @@ use exploration::math::Point2;
 use exploration::policy::{Capabilities, PolicyConfig, catalogue};
 use exploration_proto::v1 as pb;
 
+use crate::auth::Caller;
 use crate::domain::{
     Actor, Assignment, Bid, Heartbeat, Leftover, LeftoverReason, LifecycleSettings, MapUpdate, MissionEvent,
     MissionSpec, MissionState, OperatorNote, Override, Pose, Region, ReplanSettings, RobotSpec, RobotState,
@@ -18,44 +19,32 @@ use crate::domain::{
 };
 use crate::error::Error;
 use crate::executive::{MissionSummary, RobotSummary};
+use crate::validate;
 
-/// Longest side of a mission grid, cells.
-pub const MAX_GRID_SIDE: u32 = 20_000;
-/// Most cells in one mission grid.
-pub const MAX_GRID_CELLS: u64 = 25_000_000;
 /// Most patches in one map update.
 pub const MAX_PATCHES: usize = 4_096;
 /// Most bids in one submission.
 pub const MAX_BIDS: usize = 10_000;
-/// Longest robot or mission name, characters.
-pub const MAX_NAME_CHARS: usize = 128;
+/// Most peers a robot may report (no mission holds more robots).
+pub const MAX_PEERS: usize = 10_000;
+
+pub use crate::validate::{MAX_GRID_CELLS, MAX_GRID_SIDE, MAX_NAME_CHARS};
 
 fn invalid(message: impl Into<String>) -> Error {
     Error::InvalidArgument(message.into())
 }
 
 fn finite(value: f64, field: &str) -> Result<f64, Error> {
-    if value.is_finite() { Ok(value) } else { Err(invalid(format!("{field} is {value}; it must be a finite number"))) }
+    Ok(validate::finite(value, field)?)
 }
 
 fn in_range(value: f64, field: &str, min: f64, max: f64, unit: &str) -> Result<f64, Error> {
-    if value >= min && value <= max {
-        Ok(value)
-    } else {
-        Err(invalid(format!("{field} is {value}; it must lie in [{min}, {max}] {unit}")))
-    }
+    Ok(validate::in_range(value, field, min, max, unit)?)
 }
 
-/// Checks a name: present, not too long.
+/// Checks a name: present, not too long, printable.
 pub fn name(value: String, field: &str) -> Result<String, Error> {
-    let trimmed = value.trim();
-    if trimmed.is_empty() {
-        return Err(invalid(format!("{field} is empty; give a name of 1 to {MAX_NAME_CHARS} characters")));
-    }
-    if trimmed.chars().count() > MAX_NAME_CHARS {
-        return Err(invalid(format!("{field} is longer than {MAX_NAME_CHARS} characters")));
-    }
-    Ok(trimmed.to_owned())
+    Ok(validate::name(&value, field)?)
 }
 
 /// A point from its proto form.
@@ -75,24 +64,11 @@ pub fn pose(p: Option<pb::Pose>, field: &str) -> Result<Pose, Error> {
 
 /// A grid frame from its proto form.
 pub fn frame(f: pb::MapFrame) -> Result<GridFrame, Error> {
-    let resolution = in_range(f.resolution, "frame.resolution", 0.01, 10.0, "metres per cell")?;
     let origin = match f.origin {
         Some(_) => point(f.origin, "frame.origin")?,
         None => Point2::origin(),
     };
-    for (side, value) in [("frame.width", f.width), ("frame.height", f.height)] {
-        if value == 0 || value > MAX_GRID_SIDE {
-            return Err(invalid(format!("{side} is {value} cells; it must lie in [1, {MAX_GRID_SIDE}]")));
-        }
-    }
-    let cells = u64::from(f.width) * u64::from(f.height);
-    if cells > MAX_GRID_CELLS {
-        return Err(invalid(format!(
-            "the map is {}×{} = {cells} cells; at most {MAX_GRID_CELLS} are allowed (use coarser cells)",
-            f.width, f.height
-        )));
-    }
-    Ok(GridFrame::new(resolution, origin, f.width, f.height))
+    Ok(validate::frame(f.resolution, origin, i64::from(f.width), i64::from(f.height), "frame.")?)
 }
 
 /// A grid frame in proto form.
@@ -129,14 +105,19 @@ pub fn replan(settings: Option<pb::ReplanSettings>) -> Result<ReplanSettings, Er
     };
     let or_default = |v: f64, d: f64| if v == 0.0 { d } else { v };
     Ok(ReplanSettings {
-        distance_m: in_range(or_default(s.distance_m, defaults.distance_m), "replan.distance_m", 0.01, 1e6, "metres")?,
-        interval: Duration::from_secs_f64(in_range(
+        distance_m: in_range(
+            or_default(s.distance_m, defaults.distance_m),
+            "replan.distance_m",
+            validate::REPLAN_DISTANCE_M.0,
+            validate::REPLAN_DISTANCE_M.1,
+            "metres",
+        )?,
+        interval: validate::seconds(
             or_default(s.interval_s, defaults.interval.as_secs_f64()),
             "replan.interval_s",
-            0.001,
-            1e6,
-            "seconds",
-        )?),
+            validate::REPLAN_INTERVAL_S.0,
+            validate::REPLAN_INTERVAL_S.1,
+        )?,
         frontier_change: in_range(
             or_default(s.frontier_change, defaults.frontier_change),
             "replan.frontier_change",
@@ -160,16 +141,11 @@ pub fn lifecycle(settings: Option<pb::LifecycleSettings>, frame: &GridFrame) -> 
         return Ok(defaults);
     };
     let seconds = |v: f64, d: Duration, field: &str| -> Result<Duration, Error> {
-        if v == 0.0 { Ok(d) } else { Ok(Duration::from_secs_f64(in_range(v, field, 0.1, 86_400.0, "seconds")?)) }
+        let (min, max) = validate::LIFECYCLE_S;
+        if v == 0.0 { Ok(d) } else { Ok(validate::seconds(v, field, min, max)?) }
     };
     let rendezvous = match s.rendezvous {
-        Some(_) => {
-            let p = point(s.rendezvous, "lifecycle.rendezvous")?;
-            if frame.cell_from_world(&p).is_none() {
-                return Err(invalid(format!("lifecycle.rendezvous ({:.2}, {:.2}) lies outside the map", p.x, p.y)));
-            }
-            Some(p)
-        }
+        Some(_) => Some(validate::on_map(point(s.rendezvous, "lifecycle.rendezvous")?, frame, "lifecycle.rendezvous")?),
         None => None,
     };
     Ok(LifecycleSettings {
@@ -205,11 +181,12 @@ impl TryFrom<pb::CreateMissionRequest> for MissionSpec {
     }
 }
 
-/// Who asks, and why: trimmed, bounded, "operator" when no name was given.
-pub fn operator_note(actor: String, reason: String) -> Result<OperatorNote, Error> {
-    let actor = actor.trim();
-    let actor = if actor.is_empty() { "operator".to_owned() } else { name(actor.to_owned(), "actor")? };
-    Ok(OperatorNote { actor, reason: reason.trim().chars().take(500).collect() })
+/// Who asks, and why. The actor is the name of the caller's token; only on
+/// an open executive is it the name the request gives ("operator" when none).
+pub fn operator_note(caller: &Caller, actor: String, reason: String) -> Result<OperatorNote, Error> {
+    let claimed = actor.trim();
+    let claimed = if claimed.is_empty() { "operator".to_owned() } else { name(claimed.to_owned(), "actor")? };
+    Ok(OperatorNote { actor: caller.actor(&claimed), reason: validate::free_text(&reason) })
 }
 
 /// A rectangle from its proto form: finite, min below max.
@@ -370,24 +347,13 @@ impl TryFrom<Option<pb::RobotCapabilities>> for CapabilitiesInput {
 
     fn try_from(c: Option<pb::RobotCapabilities>) -> Result<Self, Error> {
         let c = c.ok_or_else(|| invalid("capabilities are required"))?;
-        let positive = |v: f64, field: &str, max: f64, unit: &str| {
-            if v > 0.0 && v <= max {
-                Ok(v)
-            } else {
-                Err(invalid(format!("{field} is {v}; it must lie in (0, {max}] {unit}")))
-            }
+        let c = Capabilities {
+            sensor_range_m: c.sensor_range_m,
+            field_of_view_rad: c.field_of_view_rad,
+            speed_mps: c.speed_mps,
+            footprint_radius_m: c.footprint_radius_m,
         };
-        Ok(Self(Capabilities {
-            sensor_range_m: positive(c.sensor_range_m, "capabilities.sensor_range_m", 100.0, "metres")?,
-            field_of_view_rad: positive(
-                c.field_of_view_rad,
-                "capabilities.field_of_view_rad",
-                std::f64::consts::TAU,
-                "radians",
-            )?,
-            speed_mps: positive(c.speed_mps, "capabilities.speed_mps", 100.0, "metres per second")?,
-            footprint_radius_m: in_range(c.footprint_radius_m, "capabilities.footprint_radius_m", 0.0, 10.0, "metres")?,
-        }))
+        Ok(Self(validate::capabilities(c, "capabilities.")?))
     }
 }
 
@@ -472,8 +438,8 @@ impl TryFrom<pb::HeartbeatRequest> for Heartbeat {
             pose: pose(r.pose, "pose")?,
             state,
             task_id,
-            reason: r.reason.chars().take(500).collect(),
-            peers: r.peers_reported.then_some(r.peers),
+            reason: validate::free_text(&r.reason),
+            peers: peers(r.peers_reported, r.peers)?,
         })
     }
 }
@@ -521,8 +487,21 @@ impl TryFrom<pb::UpdateMapRequest> for MapUpdate {
             .enumerate()
             .map(|(i, p)| PatchInput::try_from(p).map(|p| p.0).map_err(|e| invalid(format!("patch {i}: {e}"))))
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(Self { seq: r.seq, pose: pose(r.pose, "pose")?, patches, peers: r.peers_reported.then_some(r.peers) })
+        Ok(Self { seq: r.seq, pose: pose(r.pose, "pose")?, patches, peers: peers(r.peers_reported, r.peers)? })
     }
+}
+
+/// The peers a robot reported, when it reported them: bounded, without repeats.
+fn peers(reported: bool, mut peers: Vec<u64>) -> Result<Option<Vec<u64>>, Error> {
+    if !reported {
+        return Ok(None);
+    }
+    if peers.len() > MAX_PEERS {
+        return Err(invalid(format!("peers lists {} robots; at most {MAX_PEERS} are allowed", peers.len())));
+    }
+    peers.sort_unstable();
+    peers.dedup();
+    Ok(Some(peers))
 }
 
 /// Bids from their proto form.

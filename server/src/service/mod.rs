@@ -13,10 +13,11 @@ use tonic::{Request, Response, Status};
 
 use exploration::grid::UNKNOWN;
 use exploration_proto::v1 as pb;
-use exploration_proto::v1::fleet_server::Fleet;
-use exploration_proto::v1::missions_server::Missions;
+use exploration_proto::v1::fleet_server::{Fleet, FleetServer};
+use exploration_proto::v1::missions_server::{Missions, MissionsServer};
+use tonic::service::interceptor::InterceptedService;
 
-use crate::auth::{Authenticator, Caller};
+use crate::auth::{AuthLayer, Authenticator, Caller};
 use crate::domain::{Heartbeat, MapUpdate, MissionSpec, RobotSpec};
 use crate::error::Error;
 use crate::executive::{Executive, RobotSummary};
@@ -31,25 +32,44 @@ pub mod convert;
 #[derive(Debug, Clone)]
 pub struct ExplorationService {
     executive: Arc<Executive>,
-    auth: Arc<Authenticator>,
     shutdown: CancellationToken,
 }
 
+/// The `Missions` server, every call authenticated first.
+pub type MissionsService = InterceptedService<MissionsServer<ExplorationService>, AuthLayer>;
+/// The `Fleet` server, every call authenticated first.
+pub type FleetService = InterceptedService<FleetServer<ExplorationService>, AuthLayer>;
+
 impl ExplorationService {
-    /// Serves `executive` to the callers `auth` admits; streams end when
-    /// `shutdown` is cancelled.
-    pub fn new(executive: Arc<Executive>, auth: Authenticator, shutdown: CancellationToken) -> Self {
-        Self { executive, auth: Arc::new(auth), shutdown }
+    /// Serves `executive`; streams end when `shutdown` is cancelled.
+    pub fn new(executive: Arc<Executive>, shutdown: CancellationToken) -> Self {
+        Self { executive, shutdown }
     }
 
-    /// Who sent the request.
+    /// Both servers behind `auth`: the only way they are served, so that no
+    /// handler runs for a caller that was not authenticated.
+    pub fn into_servers(self, auth: Authenticator, max_message_bytes: usize) -> (MissionsService, FleetService) {
+        let executive = Arc::clone(&self.executive);
+        let layer = AuthLayer::new(auth, move |robot| executive.robot_token_hash(robot));
+        let missions = MissionsServer::new(self.clone()).max_decoding_message_size(max_message_bytes);
+        let fleet = FleetServer::new(self).max_decoding_message_size(max_message_bytes);
+        (InterceptedService::new(missions, layer.clone()), InterceptedService::new(fleet, layer))
+    }
+
+    /// Who sent the request, as the authentication layer found.
     fn caller<T>(&self, request: &Request<T>) -> Result<Caller, Error> {
-        self.auth.caller(request.metadata(), |robot| self.executive.robot_token_hash(robot))
+        request
+            .extensions()
+            .get::<Caller>()
+            .cloned()
+            .ok_or_else(|| Error::Internal("a request reached a handler without passing the auth layer".to_owned()))
     }
 
-    /// The request must come from an operator.
-    fn operator<T>(&self, request: &Request<T>, what: &str) -> Result<(), Error> {
-        self.caller(request)?.require_operator(what)
+    /// The request must come from an operator; returns who.
+    fn operator<T>(&self, request: &Request<T>, what: &str) -> Result<Caller, Error> {
+        let caller = self.caller(request)?;
+        caller.require_operator(what)?;
+        Ok(caller)
     }
 
     /// The request must come from `robot` itself or an operator.
@@ -64,9 +84,15 @@ impl ExplorationService {
     }
 
     /// PauseMission (`pause`) and ResumeMission, once the caller is checked.
-    async fn set_paused(&self, r: pb::MissionControlRequest, pause: bool) -> Result<Response<pb::Mission>, Status> {
+    async fn set_paused(
+        &self,
+        caller: &Caller,
+        r: pb::MissionControlRequest,
+        pause: bool,
+    ) -> Result<Response<pb::Mission>, Status> {
         let id = required_id(r.mission_id, "mission_id")?;
-        let mission = self.executive.pause_mission(id, pause, convert::operator_note(r.actor, r.reason)?).await?;
+        let note = convert::operator_note(caller, r.actor, r.reason)?;
+        let mission = self.executive.pause_mission(id, pause, note).await?;
         Ok(Response::new((&mission).into()))
     }
 }
@@ -161,13 +187,13 @@ impl Missions for ExplorationService {
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
     async fn set_policy(&self, request: Request<pb::SetPolicyRequest>) -> Result<Response<pb::Mission>, Status> {
-        self.operator(&request, "changing a mission's policy")?;
+        let caller = self.operator(&request, "changing a mission's policy")?;
         let r = request.into_inner();
         let id = required_id(r.mission_id, "mission_id")?;
         let policy =
             convert::policy(Some(r.policy.ok_or_else(|| Error::InvalidArgument("policy is required".into()))?))?;
-        let actor = if r.actor.trim().is_empty() { "operator".to_owned() } else { r.actor.trim().to_owned() };
-        let mission = self.executive.set_policy(id, policy, &actor, r.reason.trim()).await?;
+        let note = convert::operator_note(&caller, r.actor, r.reason)?;
+        let mission = self.executive.set_policy(id, policy, &note.actor, &note.reason).await?;
         Ok(Response::new((&mission).into()))
     }
 
@@ -226,11 +252,11 @@ impl Missions for ExplorationService {
 
     #[tracing::instrument(skip_all, fields(robot = request.get_ref().robot_id))]
     async fn override_robot(&self, request: Request<pb::OverrideRobotRequest>) -> Result<Response<pb::Robot>, Status> {
-        self.operator(&request, "overriding a robot")?;
+        let caller = self.operator(&request, "overriding a robot")?;
         let r = request.into_inner();
         let robot = required_id(r.robot_id, "robot_id")?;
         let action = convert::OverrideInput::try_from(r.action)?.0;
-        let note = convert::operator_note(r.actor, r.reason)?;
+        let note = convert::operator_note(&caller, r.actor, r.reason)?;
         let summary = self.executive.override_robot(robot, action, note).await?;
         Ok(Response::new((&summary).into()))
     }
@@ -240,8 +266,8 @@ impl Missions for ExplorationService {
         &self,
         request: Request<pb::MissionControlRequest>,
     ) -> Result<Response<pb::Mission>, Status> {
-        self.operator(&request, "pausing a mission")?;
-        self.set_paused(request.into_inner(), true).await
+        let caller = self.operator(&request, "pausing a mission")?;
+        self.set_paused(&caller, request.into_inner(), true).await
     }
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
@@ -249,27 +275,29 @@ impl Missions for ExplorationService {
         &self,
         request: Request<pb::MissionControlRequest>,
     ) -> Result<Response<pb::Mission>, Status> {
-        self.operator(&request, "resuming a mission")?;
-        self.set_paused(request.into_inner(), false).await
+        let caller = self.operator(&request, "resuming a mission")?;
+        self.set_paused(&caller, request.into_inner(), false).await
     }
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
     async fn forbid_region(&self, request: Request<pb::ForbidRegionRequest>) -> Result<Response<pb::Region>, Status> {
-        self.operator(&request, "forbidding a region")?;
+        let caller = self.operator(&request, "forbidding a region")?;
         let r = request.into_inner();
         let id = required_id(r.mission_id, "mission_id")?;
         let (min, max) = convert::area(r.area, "area")?;
-        let region = self.executive.forbid_region(id, min, max, convert::operator_note(r.actor, r.reason)?).await?;
+        let note = convert::operator_note(&caller, r.actor, r.reason)?;
+        let region = self.executive.forbid_region(id, min, max, note).await?;
         Ok(Response::new(convert::region(&region)))
     }
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id, region = request.get_ref().region_id))]
     async fn allow_region(&self, request: Request<pb::AllowRegionRequest>) -> Result<Response<pb::Mission>, Status> {
-        self.operator(&request, "allowing a region")?;
+        let caller = self.operator(&request, "allowing a region")?;
         let r = request.into_inner();
         let id = required_id(r.mission_id, "mission_id")?;
         let region = required_id(r.region_id, "region_id")?;
-        let mission = self.executive.allow_region(id, region, convert::operator_note(r.actor, r.reason)?).await?;
+        let note = convert::operator_note(&caller, r.actor, r.reason)?;
+        let mission = self.executive.allow_region(id, region, note).await?;
         Ok(Response::new((&mission).into()))
     }
 }

@@ -2,8 +2,9 @@
 //!
 //! The executive talks to a [`Store`] only; SQL lives behind it, in
 //! [`sqlite`]. Every write is a [`Changeset`] committed in one transaction,
-//! so a crash leaves either all of an operation or none of it. A PostgreSQL
-//! backend implements the same trait.
+//! so a crash leaves either all of an operation or none of it, and a commit
+//! that fails leaves the store as it was and usable. A store belongs to one
+//! executive at a time ([`lock`]).
 
 use async_trait::async_trait;
 
@@ -15,11 +16,12 @@ use exploration::fusion::Patch;
 use exploration::grid::Cell;
 use exploration::policy::PolicyConfig;
 
+pub mod lock;
 pub mod sqlite;
 
 pub use sqlite::SqliteStore;
 
-/// Why the store failed. Never shown to clients; logged once by the service.
+/// Why the store failed. Never shown to clients in detail; logged once by the service.
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
     /// The database refused or failed.
@@ -28,9 +30,53 @@ pub enum StoreError {
     /// Migrations could not be applied.
     #[error("migration error: {0}")]
     Migrate(#[from] sqlx::migrate::MigrateError),
-    /// A stored value does not parse.
+    /// A stored value does not parse or breaks a limit.
     #[error("corrupt record: {0}")]
     Corrupt(String),
+    /// Another executive holds the store.
+    #[error("{0}")]
+    Locked(String),
+    /// The lock file could not be made or read.
+    #[error("lock file {path}: {source}")]
+    LockFile {
+        /// The lock file.
+        path: std::path::PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+}
+
+/// What a failure means for the caller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FailureKind {
+    /// The disk (or the database's size limit) is full: nothing was written;
+    /// reads still work, and writes will once space is freed.
+    Full,
+    /// A passing condition (the file is busy, an I/O error): nothing was
+    /// written; retrying later may succeed.
+    Transient,
+    /// Anything else: a bug, a corrupt file.
+    Internal,
+}
+
+impl StoreError {
+    /// What this failure means for the caller.
+    pub fn kind(&self) -> FailureKind {
+        let Self::Database(sqlx::Error::Database(e)) = self else {
+            return match self {
+                Self::Database(sqlx::Error::Io(_) | sqlx::Error::PoolTimedOut) => FailureKind::Transient,
+                _ => FailureKind::Internal,
+            };
+        };
+        // SQLite's primary result codes (https://www.sqlite.org/rescode.html)
+        // are the low byte of the extended ones sqlx reports.
+        let primary = e.code().and_then(|c| c.parse::<i32>().ok()).map(|c| c & 0xff);
+        match primary {
+            Some(13) => FailureKind::Full,                            // SQLITE_FULL
+            Some(5 | 6 | 8 | 10 | 14 | 15) => FailureKind::Transient, // BUSY, LOCKED, READONLY, IOERR, CANTOPEN, PROTOCOL
+            _ => FailureKind::Internal,
+        }
+    }
 }
 
 /// A mission's counters and state, as the executive last set them.
@@ -99,6 +145,10 @@ pub struct Changeset {
     pub forbidden: Vec<Region>,
     /// Forbidden regions allowed again (at the changeset's time).
     pub allowed: Vec<u64>,
+    /// Robots' new token hashes.
+    pub robot_tokens: Vec<(RobotId, String)>,
+    /// A robot's bids, replacing its earlier ones.
+    pub bids: Option<(RobotId, Vec<Bid>)>,
     /// When.
     pub at: Option<Timestamp>,
 }
@@ -118,6 +168,8 @@ impl Changeset {
             && self.unblacklisted.is_empty()
             && self.forbidden.is_empty()
             && self.allowed.is_empty()
+            && self.robot_tokens.is_empty()
+            && self.bids.is_none()
     }
 }
 
@@ -152,17 +204,15 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// Every mission, oldest first.
     async fn missions(&self) -> Result<Vec<MissionRecord>, StoreError>;
 
-    /// Registers a robot with the hash of its token and returns it with its new identity.
+    /// Registers a robot, with the hash of a token that names its new
+    /// identity (`token_hash` is given that identity), in one transaction.
     async fn create_robot(
         &self,
         mission_id: MissionId,
         spec: &RobotSpec,
-        token_sha256: &str,
+        token_hash: &(dyn Fn(RobotId) -> String + Send + Sync),
         now: Timestamp,
     ) -> Result<RobotRecord, StoreError>;
-
-    /// Replaces the hash of a robot's token.
-    async fn set_robot_token(&self, robot_id: RobotId, token_sha256: &str) -> Result<(), StoreError>;
 
     /// Every robot's token hash (robots registered before tokens have none).
     async fn robot_tokens(&self) -> Result<Vec<(RobotId, String)>, StoreError>;
@@ -177,10 +227,10 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     async fn max_region_id(&self) -> Result<u64, StoreError>;
 
     /// A mission's robots, in registration order.
-    async fn robots(&self, mission_id: MissionId) -> Result<Vec<RobotRecord>, StoreError>;
+    async fn robots(&self, mission: &MissionRecord) -> Result<Vec<RobotRecord>, StoreError>;
 
     /// A mission's map log, in the order it was applied.
-    async fn patches(&self, mission_id: MissionId) -> Result<Vec<LoggedPatch>, StoreError>;
+    async fn patches(&self, mission: &MissionRecord) -> Result<Vec<LoggedPatch>, StoreError>;
 
     /// A mission's tasks that have not ended.
     async fn open_tasks(&self, mission_id: MissionId) -> Result<Vec<TaskRecord>, StoreError>;
@@ -191,9 +241,6 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// The highest task identity ever given (0 when none).
     async fn max_task_id(&self) -> Result<TaskId, StoreError>;
 
-    /// Replaces a robot's bids.
-    async fn replace_bids(&self, robot_id: RobotId, bids: &[Bid], now: Timestamp) -> Result<(), StoreError>;
-
     /// A robot's latest bids.
     async fn bids(&self, robot_id: RobotId) -> Result<Vec<Bid>, StoreError>;
 
@@ -203,6 +250,11 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// A mission's latest segmentation, if one was computed.
     async fn segmentation(&self, mission_id: MissionId) -> Result<Option<StoredSegmentation>, StoreError>;
 
-    /// Writes a changeset in one transaction.
+    /// Writes a changeset in one transaction: all of it is durable when this
+    /// returns `Ok`, none of it when it returns an error.
     async fn commit(&self, changes: &Changeset) -> Result<(), StoreError>;
+
+    /// Writes a consistent copy of the whole store, taken while it is in
+    /// use, to a new file at `path`.
+    async fn backup(&self, path: &std::path::Path) -> Result<(), StoreError>;
 }

@@ -428,23 +428,45 @@ impl Mission {
         (corner(r.x, r.y), corner(r.x_end(), r.y_end()))
     }
 
-    /// Takes a robot's bids (from the store or a request) into the mission's cells.
+    /// Checks a robot's bids against the map: each target on it, each gain
+    /// region overlapping it (only its part on the map counts).
+    pub(crate) fn check_bids(&self, robot_id: RobotId, bids: &[Bid]) -> Result<(), Error> {
+        self.robot(robot_id)?;
+        let frame = &self.record.spec.frame;
+        for (i, bid) in bids.iter().enumerate() {
+            crate::validate::on_map(bid.target, frame, &format!("bids[{i}].target"))?;
+            if frame.rect_from_world(&bid.gain_region.0, &bid.gain_region.1).is_none() {
+                return Err(Error::InvalidArgument(format!(
+                    "bids[{i}].gain_region does not overlap the mission map; give the region the target would reveal"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Takes a robot's bids (from the store or a request) into the mission's
+    /// cells; a bid off the map (stored by an older executive) is dropped.
     pub(crate) fn set_bids(&mut self, robot: RobotId, bids: &[Bid]) {
         let frame = self.record.spec.frame;
-        let converted = bids
+        let converted: Vec<PolicyBid> = bids
             .iter()
             .filter_map(|b| {
-                let target = frame.cell_from_world(&b.target)?;
-                let low = frame.cell_from_world_unchecked(&b.gain_region.0);
-                let high = frame.cell_from_world_unchecked(&b.gain_region.1);
                 Some(PolicyBid {
-                    target,
+                    target: frame.cell_from_world(&b.target)?,
                     path_cost_m: b.path_cost,
                     information_gain: b.information_gain,
-                    gain_region: CellRect::spanning(low, high),
+                    gain_region: frame.rect_from_world(&b.gain_region.0, &b.gain_region.1)?,
                 })
             })
             .collect();
+        if converted.len() < bids.len() {
+            tracing::warn!(
+                mission = self.record.id,
+                robot,
+                dropped = bids.len() - converted.len(),
+                "bids off the mission map dropped"
+            );
+        }
         self.bids.insert(robot, converted);
         if self.policy.name() == "simmons" {
             self.pending_replan = Some(format!("robot {robot} submitted bids"));
@@ -859,10 +881,7 @@ impl Mission {
 
     /// The cells of a world rectangle, clipped to the map; `None` outside it.
     fn cell_rect(&self, min: Point2, max: Point2) -> Option<CellRect> {
-        let frame = &self.record.spec.frame;
-        let low = frame.cell_from_world_unchecked(&min);
-        let high = frame.cell_from_world_unchecked(&max);
-        frame.clip(&CellRect::spanning(low, high))
+        self.record.spec.frame.rect_from_world(&min, &max)
     }
 
     /// The connected sub-teams of the communication graph the robots

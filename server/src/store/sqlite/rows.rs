@@ -1,0 +1,514 @@
+//! Rows read back into records, checked like input from the network.
+//!
+//! A database file can be edited, restored from an old backup or damaged; a
+//! value that would make the executive panic, wrap around or allocate without
+//! bound later is refused here, with an error naming the table, the row and
+//! the column, so that a bad row stops the start instead.
+
+use std::collections::BTreeMap;
+
+use sqlx::Row;
+use sqlx::sqlite::SqliteRow;
+
+use crate::domain::{
+    Actor, Bid, BlacklistEntry, Leftover, LeftoverReason, LifecycleSettings, MissionEvent, MissionRecord, MissionSpec,
+    MissionState, Pose, Region, ReplanSettings, RobotId, RobotRecord, RobotState, StoredSegmentation, TaskId, TaskKind,
+    TaskRecord, TaskState, Timestamp, Transition,
+};
+use crate::store::{LoggedPatch, StoreError};
+use crate::validate::{self, Invalid};
+use exploration::fusion::Patch;
+use exploration::grid::{Cell, CellRect, GridFrame};
+use exploration::math::Point2;
+use exploration::policy::{Capabilities, PolicyConfig};
+use exploration::segment::{CriticalPoint, Segment, Segmentation};
+
+/// Where a value came from: its table and row, for the error.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct At<'a> {
+    table: &'a str,
+    id: i64,
+}
+
+impl<'a> At<'a> {
+    /// The row of `table` whose identity is in column `key`.
+    pub(super) fn row(table: &'a str, row: &SqliteRow, key: &str) -> Result<Self, StoreError> {
+        let id = row
+            .try_get::<i64, _>(key)
+            .map_err(|e| StoreError::Corrupt(format!("{table}: a row without a valid {key}: {e}")))?;
+        Ok(Self { table, id })
+    }
+
+    /// An error about this row.
+    pub(super) fn bad(self, what: impl std::fmt::Display) -> StoreError {
+        StoreError::Corrupt(format!("{} row {}: {what}", self.table, self.id))
+    }
+
+    fn invalid(self, e: Invalid) -> StoreError {
+        self.bad(e)
+    }
+
+    /// A column of the expected type.
+    pub(super) fn get<'r, T>(self, row: &'r SqliteRow, column: &str) -> Result<T, StoreError>
+    where
+        T: sqlx::Decode<'r, sqlx::Sqlite> + sqlx::Type<sqlx::Sqlite>,
+    {
+        row.try_get(column).map_err(|e| self.bad(format!("{column}: {e}")))
+    }
+
+    fn finite(self, row: &SqliteRow, column: &str) -> Result<f64, StoreError> {
+        validate::finite(self.get(row, column)?, column).map_err(|e| self.invalid(e))
+    }
+
+    fn in_range(self, row: &SqliteRow, column: &str, min: f64, max: f64) -> Result<f64, StoreError> {
+        validate::in_range(self.get(row, column)?, column, min, max, "").map_err(|e| self.invalid(e))
+    }
+
+    fn count(self, row: &SqliteRow, column: &str) -> Result<u64, StoreError> {
+        validate::count(self.get(row, column)?, column).map_err(|e| self.invalid(e))
+    }
+
+    fn id_column(self, row: &SqliteRow, column: &str) -> Result<u64, StoreError> {
+        match self.count(row, column)? {
+            0 => Err(self.bad(format!("{column} is 0; identities start at 1"))),
+            id => Ok(id),
+        }
+    }
+
+    fn flag(self, row: &SqliteRow, column: &str) -> Result<bool, StoreError> {
+        match self.get::<i64>(row, column)? {
+            0 => Ok(false),
+            1 => Ok(true),
+            v => Err(self.bad(format!("{column} is {v}; it must be 0 or 1"))),
+        }
+    }
+
+    fn cell(self, row: &SqliteRow, x: &str, y: &str) -> Result<Cell, StoreError> {
+        let coordinate = |column: &str| {
+            let v: i64 = self.get(row, column)?;
+            i32::try_from(v).map_err(|_| self.bad(format!("{column} is {v}, not a cell coordinate")))
+        };
+        Ok(Cell::new(coordinate(x)?, coordinate(y)?))
+    }
+
+    fn point(self, row: &SqliteRow, x: &str, y: &str) -> Result<Point2, StoreError> {
+        let x = validate::coordinate(self.get(row, x)?, x).map_err(|e| self.invalid(e))?;
+        let y = validate::coordinate(self.get(row, y)?, y).map_err(|e| self.invalid(e))?;
+        Ok(Point2::new(x, y))
+    }
+
+    fn on_map(self, row: &SqliteRow, x: &str, y: &str, frame: &GridFrame) -> Result<Point2, StoreError> {
+        let point = Point2::new(self.finite(row, x)?, self.finite(row, y)?);
+        validate::on_map(point, frame, &format!("({x}, {y})")).map_err(|e| self.invalid(e))
+    }
+
+    fn timestamp(self, row: &SqliteRow, column: &str) -> Result<Timestamp, StoreError> {
+        Ok(Timestamp(self.get(row, column)?))
+    }
+
+    fn parse<T>(self, row: &SqliteRow, column: &str, parse: impl Fn(&str) -> Option<T>) -> Result<T, StoreError> {
+        let text: String = self.get(row, column)?;
+        parse(&text).ok_or_else(|| self.bad(format!("{column} {text:?} is not a known value")))
+    }
+
+    fn name(self, row: &SqliteRow, column: &str) -> Result<String, StoreError> {
+        validate::name(&self.get::<String>(row, column)?, column).map_err(|e| self.invalid(e))
+    }
+}
+
+pub(super) fn leftovers_json(leftovers: &[Leftover]) -> String {
+    let items: Vec<serde_json::Value> = leftovers
+        .iter()
+        .map(|l| {
+            serde_json::json!({
+                "reason": l.reason.as_str(), "cells": l.cells, "x": l.position.x, "y": l.position.y,
+            })
+        })
+        .collect();
+    serde_json::Value::Array(items).to_string()
+}
+
+fn leftovers_from_json(at: At<'_>, json: &str) -> Result<Vec<Leftover>, StoreError> {
+    let bad = |what: &str| at.bad(format!("leftovers: {what}"));
+    let value: serde_json::Value = serde_json::from_str(json).map_err(|e| bad(&e.to_string()))?;
+    value
+        .as_array()
+        .ok_or_else(|| bad("not an array"))?
+        .iter()
+        .map(|l| {
+            let reason = l["reason"].as_str().and_then(LeftoverReason::parse).ok_or_else(|| bad("reason"))?;
+            let coordinate = |key: &str| {
+                let v = l[key].as_f64().ok_or_else(|| bad(key))?;
+                validate::coordinate(v, &format!("leftovers.{key}")).map_err(|e| at.invalid(e))
+            };
+            Ok(Leftover {
+                reason,
+                cells: usize::try_from(l["cells"].as_u64().ok_or_else(|| bad("cells"))?).map_err(|_| bad("cells"))?,
+                position: Point2::new(coordinate("x")?, coordinate("y")?),
+            })
+        })
+        .collect()
+}
+
+/// The grid frame of a `missions` row.
+pub(super) fn frame_from_row(at: At<'_>, row: &SqliteRow) -> Result<GridFrame, StoreError> {
+    validate::frame(
+        at.get(row, "resolution")?,
+        Point2::new(at.get(row, "origin_x")?, at.get(row, "origin_y")?),
+        at.get(row, "width")?,
+        at.get(row, "height")?,
+        "",
+    )
+    .map_err(|e| at.invalid(e))
+}
+
+pub(super) fn mission_from_row(row: &SqliteRow) -> Result<MissionRecord, StoreError> {
+    let at = At::row("missions", row, "id")?;
+    let id = at.id_column(row, "id")?;
+    let params_json: String = at.get(row, "policy_params")?;
+    let params: BTreeMap<String, f64> =
+        serde_json::from_str(&params_json).map_err(|e| at.bad(format!("policy_params: {e}")))?;
+    let policy = PolicyConfig::new(&at.get::<String>(row, "policy")?, &params).map_err(|e| at.bad(e))?;
+    let frame = frame_from_row(at, row)?;
+    let seconds = |column: &str, (min, max): (f64, f64)| {
+        validate::seconds(at.get(row, column)?, column, min, max).map_err(|e| at.invalid(e))
+    };
+    let rendezvous = match (at.get::<Option<f64>>(row, "rendezvous_x")?, at.get::<Option<f64>>(row, "rendezvous_y")?) {
+        (Some(_), Some(_)) => Some(at.on_map(row, "rendezvous_x", "rendezvous_y", &frame)?),
+        (None, None) => None,
+        _ => return Err(at.bad("rendezvous_x and rendezvous_y must both be set or both be NULL")),
+    };
+    Ok(MissionRecord {
+        id,
+        spec: MissionSpec {
+            name: at.name(row, "name")?,
+            frame,
+            policy,
+            replan: ReplanSettings {
+                distance_m: at.in_range(
+                    row,
+                    "replan_distance_m",
+                    validate::REPLAN_DISTANCE_M.0,
+                    validate::REPLAN_DISTANCE_M.1,
+                )?,
+                interval: seconds("replan_interval_s", validate::REPLAN_INTERVAL_S)?,
+                frontier_change: at.in_range(row, "replan_frontier_change", 0.0, 1.0)?,
+            },
+            scoped_by_communication: at.flag(row, "scoped_by_communication")?,
+            lifecycle: LifecycleSettings {
+                lease: seconds("lease_s", validate::LIFECYCLE_S)?,
+                stall: seconds("stall_s", validate::LIFECYCLE_S)?,
+                rendezvous,
+            },
+        },
+        state: at.parse(row, "state", MissionState::parse)?,
+        replans: at.count(row, "replans")?,
+        map_updates: at.count(row, "map_updates")?,
+        paused: at.flag(row, "paused")?,
+        leftovers: leftovers_from_json(at, &at.get::<String>(row, "leftovers")?)?,
+        created_at: at.timestamp(row, "created_at")?,
+    })
+}
+
+/// A robot of the mission whose grid is `frame`.
+pub(super) fn robot_from_row(row: &SqliteRow, frame: &GridFrame) -> Result<RobotRecord, StoreError> {
+    let at = At::row("robots", row, "id")?;
+    let capabilities = Capabilities {
+        sensor_range_m: at.get(row, "sensor_range_m")?,
+        field_of_view_rad: at.get(row, "field_of_view_rad")?,
+        speed_mps: at.get(row, "speed_mps")?,
+        footprint_radius_m: at.get(row, "footprint_radius_m")?,
+    };
+    Ok(RobotRecord {
+        id: at.id_column(row, "id")?,
+        mission_id: at.id_column(row, "mission_id")?,
+        name: at.name(row, "name")?,
+        capabilities: validate::capabilities(capabilities, "").map_err(|e| at.invalid(e))?,
+        state: at.parse(row, "state", RobotState::parse)?,
+        pose: Pose {
+            position: at.on_map(row, "pose_x", "pose_y", frame)?,
+            heading: exploration::math::normalize_angle(at.finite(row, "pose_theta")?),
+        },
+        last_map_seq: at.count(row, "last_map_seq")?,
+        distance_m: at.in_range(row, "distance_m", 0.0, f64::MAX)?,
+        assignment_version: at.count(row, "assignment_version")?,
+        assigned_distance_m: at.in_range(row, "assigned_distance_m", 0.0, f64::MAX)?,
+        current_task: match at.get::<Option<i64>>(row, "current_task_id")? {
+            Some(_) => Some(at.id_column(row, "current_task_id")?),
+            None => None,
+        },
+        last_seen: at.timestamp(row, "last_seen")?,
+        lost: at.flag(row, "lost")?,
+        home: at.on_map(row, "home_x", "home_y", frame)?,
+    })
+}
+
+pub(super) fn task_from_row(row: &SqliteRow) -> Result<TaskRecord, StoreError> {
+    let at = At::row("tasks", row, "id")?;
+    let gain_region = match (
+        at.get::<Option<i64>>(row, "gain_x")?,
+        at.get::<Option<i64>>(row, "gain_y")?,
+        at.get::<Option<i64>>(row, "gain_width")?,
+        at.get::<Option<i64>>(row, "gain_height")?,
+    ) {
+        (Some(x), Some(y), Some(w), Some(h)) => {
+            let fits = |v: i64| i32::try_from(v).is_ok();
+            let side = |v: i64| u32::try_from(v).ok().filter(|&s| s > 0 && s <= validate::MAX_GRID_SIDE);
+            match (fits(x) && fits(y), side(w), side(h)) {
+                (true, Some(w), Some(h)) => Some(CellRect::new(x as i32, y as i32, w, h)),
+                _ => return Err(at.bad(format!("gain region {x}, {y}, {w}×{h} is not a rectangle of the grid"))),
+            }
+        }
+        (None, None, None, None) => None,
+        _ => return Err(at.bad("gain_x, gain_y, gain_width and gain_height must all be set or all be NULL")),
+    };
+    Ok(TaskRecord {
+        id: at.id_column(row, "id")?,
+        mission_id: at.id_column(row, "mission_id")?,
+        robot_id: at.id_column(row, "robot_id")?,
+        kind: at.parse(row, "kind", TaskKind::parse)?,
+        target: at.point(row, "target_x", "target_y")?,
+        state: at.parse(row, "state", TaskState::parse)?,
+        policy: at.get(row, "policy")?,
+        utility: at.get(row, "utility")?,
+        path_cost: at.get(row, "path_cost")?,
+        gain_region,
+        created_by: at.get(row, "created_by")?,
+        note: at.get(row, "note")?,
+        created_at: at.timestamp(row, "created_at")?,
+        updated_at: at.timestamp(row, "updated_at")?,
+        transitions: Vec::new(),
+    })
+}
+
+pub(super) fn transition_from_row(row: &SqliteRow) -> Result<(TaskId, Transition), StoreError> {
+    let at = At::row("task_transitions", row, "id")?;
+    let from = match at.get::<Option<String>>(row, "from_state")? {
+        Some(_) => Some(at.parse(row, "from_state", TaskState::parse)?),
+        None => None,
+    };
+    Ok((
+        at.id_column(row, "task_id")?,
+        Transition {
+            from,
+            to: at.parse(row, "to_state", TaskState::parse)?,
+            at: at.timestamp(row, "at")?,
+            cause: at.get(row, "cause")?,
+            actor: at.parse(row, "actor", Actor::parse)?,
+            by: at.get(row, "by_name")?,
+        },
+    ))
+}
+
+/// A logged patch of the mission whose grid is `frame`.
+pub(super) fn patch_from_row(row: &SqliteRow, frame: &GridFrame) -> Result<LoggedPatch, StoreError> {
+    let at = At::row("map_patches", row, "id")?;
+    let side = |column: &str| {
+        let v: i64 = at.get(row, column)?;
+        u32::try_from(v).ok().filter(|&s| s > 0).ok_or_else(|| at.bad(format!("{column} is {v} cells")))
+    };
+    let corner = at.cell(row, "x", "y")?;
+    let rect = CellRect::new(corner.x, corner.y, side("width")?, side("height")?);
+    if !frame.contains_rect(&rect) {
+        return Err(at.bad(format!("the patch {rect:?} leaves the {}×{} mission grid", frame.width, frame.height)));
+    }
+    let cells: Vec<u8> = at.get(row, "cells")?;
+    if cells.len() as u64 != rect.area() * 4 {
+        return Err(at.bad(format!("cells holds {} bytes, not 4 per cell of {} cells", cells.len(), rect.area())));
+    }
+    let patch = Patch::from_stored(rect, decode_cells(&cells)).map_err(|e| at.bad(e))?;
+    Ok(LoggedPatch { robot_id: at.id_column(row, "robot_id")?, seq: at.count(row, "seq")?, patch })
+}
+
+pub(super) fn bid_from_row(row: &SqliteRow) -> Result<Bid, StoreError> {
+    let at = At::row("bids", row, "robot_id")?;
+    Ok(Bid {
+        target: at.point(row, "target_x", "target_y")?,
+        path_cost: at.in_range(row, "path_cost", 0.0, f64::MAX)?,
+        information_gain: at.in_range(row, "information_gain", 0.0, f64::MAX)?,
+        gain_region: (
+            Point2::new(at.finite(row, "region_min_x")?, at.finite(row, "region_min_y")?),
+            Point2::new(at.finite(row, "region_max_x")?, at.finite(row, "region_max_y")?),
+        ),
+    })
+}
+
+pub(super) fn blacklist_from_row(row: &SqliteRow) -> Result<BlacklistEntry, StoreError> {
+    let at = At::row("blacklist", row, "robot_id")?;
+    Ok(BlacklistEntry {
+        robot_id: at.id_column(row, "robot_id")?,
+        cell: at.cell(row, "cell_x", "cell_y")?,
+        cause: at.get(row, "cause")?,
+        created_at: at.timestamp(row, "created_at")?,
+    })
+}
+
+pub(super) fn region_from_row(row: &SqliteRow) -> Result<Region, StoreError> {
+    let at = At::row("forbidden_regions", row, "id")?;
+    let (min, max) = (at.point(row, "min_x", "min_y")?, at.point(row, "max_x", "max_y")?);
+    if min.x >= max.x || min.y >= max.y {
+        return Err(at.bad("min_x, min_y must lie below max_x, max_y"));
+    }
+    Ok(Region {
+        id: at.id_column(row, "id")?,
+        mission_id: at.id_column(row, "mission_id")?,
+        min,
+        max,
+        actor: at.get(row, "actor")?,
+        reason: at.get(row, "reason")?,
+        created_at: at.timestamp(row, "created_at")?,
+    })
+}
+
+pub(super) fn event_from_row(row: &SqliteRow) -> Result<MissionEvent, StoreError> {
+    let at = At::row("mission_events", row, "id")?;
+    Ok(MissionEvent {
+        id: at.id_column(row, "id")?,
+        mission_id: at.id_column(row, "mission_id")?,
+        at: at.timestamp(row, "at")?,
+        kind: at.get(row, "kind")?,
+        detail: at.get(row, "detail")?,
+        actor: at.get(row, "actor")?,
+    })
+}
+
+/// Run-length encoding of labels: (label, run) pairs of little-endian u32.
+pub(super) fn encode_labels(labels: &[u32]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < labels.len() {
+        let label = labels[i];
+        let run = labels[i..].iter().take_while(|&&l| l == label).count();
+        out.extend_from_slice(&label.to_le_bytes());
+        out.extend_from_slice(&(run as u32).to_le_bytes());
+        i += run;
+    }
+    out
+}
+
+/// The labels of `len` cells; runs that add up to anything else are refused
+/// before anything is allocated for them.
+fn decode_labels(at: At<'_>, bytes: &[u8], len: usize) -> Result<Vec<u32>, StoreError> {
+    if !bytes.len().is_multiple_of(8) {
+        return Err(at.bad(format!("labels hold {} bytes, not (label, run) pairs of 8", bytes.len())));
+    }
+    let pairs = || {
+        bytes.chunks_exact(8).map(|p| {
+            (u32::from_le_bytes([p[0], p[1], p[2], p[3]]), u32::from_le_bytes([p[4], p[5], p[6], p[7]]) as usize)
+        })
+    };
+    let total: u64 = pairs().map(|(_, run)| run as u64).sum();
+    if total != len as u64 {
+        return Err(at.bad(format!("labels hold {total} cells, not the grid's {len}")));
+    }
+    let mut labels = Vec::with_capacity(len);
+    for (label, run) in pairs() {
+        labels.extend(std::iter::repeat_n(label, run));
+    }
+    Ok(labels)
+}
+
+pub(super) fn segments_json(segmentation: &Segmentation) -> String {
+    let segments: Vec<serde_json::Value> = segmentation
+        .segments
+        .iter()
+        .map(|s| {
+            serde_json::json!({
+                "id": s.id,
+                "cells": s.cells,
+                "bounds": [s.bounds.x, s.bounds.y, s.bounds.width, s.bounds.height],
+                "frontier": s.frontier.iter().map(|c| [c.x, c.y]).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    serde_json::Value::Array(segments).to_string()
+}
+
+pub(super) fn critical_points_json(segmentation: &Segmentation) -> String {
+    let points: Vec<serde_json::Value> =
+        segmentation.critical_points.iter().map(|p| serde_json::json!([p.cell.x, p.cell.y, p.clearance])).collect();
+    serde_json::Value::Array(points).to_string()
+}
+
+/// The segmentation of the mission whose grid is `frame`.
+pub(super) fn segmentation_from_row(row: &SqliteRow, frame: GridFrame) -> Result<StoredSegmentation, StoreError> {
+    let at = At::row("segmentations", row, "mission_id")?;
+    let bad = |what: &str| at.bad(what);
+    let labels = decode_labels(at, &at.get::<Vec<u8>>(row, "labels")?, frame.len())?;
+    let segments: serde_json::Value =
+        serde_json::from_str(&at.get::<String>(row, "segments")?).map_err(|e| bad(&format!("segments: {e}")))?;
+    let points: serde_json::Value = serde_json::from_str(&at.get::<String>(row, "critical_points")?)
+        .map_err(|e| bad(&format!("critical_points: {e}")))?;
+    let int = |v: &serde_json::Value, what: &str| v.as_i64().ok_or_else(|| bad(&format!("{what} is not an integer")));
+    let small = |v: &serde_json::Value, what: &str| {
+        i32::try_from(int(v, what)?).map_err(|_| bad(&format!("{what} is not a cell coordinate")))
+    };
+    let cell = |c: &serde_json::Value, what: &str| -> Result<Cell, StoreError> {
+        let cell = Cell::new(small(&c[0], what)?, small(&c[1], what)?);
+        if frame.contains(cell) { Ok(cell) } else { Err(bad(&format!("{what} {cell:?} is off the grid"))) }
+    };
+    let segments = segments
+        .as_array()
+        .ok_or_else(|| bad("segments is not an array"))?
+        .iter()
+        .map(|s| {
+            let b = s["bounds"].as_array().filter(|b| b.len() == 4).ok_or_else(|| bad("segment bounds"))?;
+            let side = |v: &serde_json::Value| {
+                u32::try_from(int(v, "segment bounds")?).map_err(|_| bad("segment bounds are negative"))
+            };
+            let bounds = CellRect::new(
+                small(&b[0], "segment bounds")?,
+                small(&b[1], "segment bounds")?,
+                side(&b[2])?,
+                side(&b[3])?,
+            );
+            Ok(Segment {
+                id: u32::try_from(int(&s["id"], "segment id")?).map_err(|_| bad("segment id"))?,
+                cells: usize::try_from(int(&s["cells"], "segment cells")?).map_err(|_| bad("segment cells"))?,
+                bounds: Some(bounds)
+                    .filter(|b| frame.contains_rect(b))
+                    .ok_or_else(|| bad("segment bounds leave the grid"))?,
+                frontier: s["frontier"]
+                    .as_array()
+                    .ok_or_else(|| bad("segment frontier"))?
+                    .iter()
+                    .map(|c| cell(c, "segment frontier cell"))
+                    .collect::<Result<_, StoreError>>()?,
+            })
+        })
+        .collect::<Result<Vec<_>, StoreError>>()?;
+    let critical_points = points
+        .as_array()
+        .ok_or_else(|| bad("critical_points is not an array"))?
+        .iter()
+        .map(|p| {
+            Ok(CriticalPoint {
+                cell: cell(p, "critical point")?,
+                clearance: p[2].as_f64().filter(|c| c.is_finite()).ok_or_else(|| bad("critical point clearance"))?,
+            })
+        })
+        .collect::<Result<Vec<_>, StoreError>>()?;
+    Ok(StoredSegmentation {
+        computed_at: at.timestamp(row, "computed_at")?,
+        segmentation: Segmentation { frame, labels, segments, critical_points },
+    })
+}
+
+/// Little-endian f32 per cell, NaN for unknown cells.
+pub(super) fn encode_cells(patch: &Patch) -> Vec<u8> {
+    patch.log_odds().iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+fn decode_cells(bytes: &[u8]) -> Vec<f32> {
+    bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+}
+
+/// Every robot's token hash: 64 lower-case hex digits.
+pub(super) fn token_from_row(row: &SqliteRow) -> Result<(RobotId, String), StoreError> {
+    let at = At::row("robots", row, "id")?;
+    let hash: String = at.get(row, "token_sha256")?;
+    if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b)) {
+        return Err(at.bad("token_sha256 is not a SHA-256 in hex"));
+    }
+    Ok((at.id_column(row, "id")?, hash))
+}

@@ -1,0 +1,353 @@
+//! The SQLite store against real database files.
+
+use std::time::Duration;
+
+use super::*;
+use crate::domain::{
+    Actor, Leftover, LeftoverReason, LifecycleSettings, MissionState, Pose, ReplanSettings, RobotState, TaskState,
+};
+use crate::store::{MissionCounters, TaskChange};
+use exploration::fusion::Patch;
+use exploration::grid::{Cell, CellRect, GridFrame};
+use exploration::math::Point2;
+use exploration::policy::{Capabilities, PolicyConfig};
+use exploration::segment::{CriticalPoint, Segment, Segmentation};
+
+const HASH: &str = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
+
+fn spec() -> MissionSpec {
+    MissionSpec {
+        name: "lab".into(),
+        frame: GridFrame::new(0.1, Point2::new(-1.0, -2.0), 40, 30),
+        policy: PolicyConfig::default_for("burgard").unwrap(),
+        replan: ReplanSettings::default(),
+        scoped_by_communication: true,
+        lifecycle: LifecycleSettings {
+            lease: Duration::from_secs(7),
+            stall: Duration::from_secs(11),
+            rendezvous: Some(Point2::new(0.5, -1.5)),
+        },
+    }
+}
+
+fn robot_spec(name: &str) -> RobotSpec {
+    RobotSpec {
+        name: name.into(),
+        capabilities: Capabilities {
+            sensor_range_m: 4.0,
+            field_of_view_rad: 6.0,
+            speed_mps: 0.5,
+            footprint_radius_m: 0.2,
+        },
+        pose: Pose { position: Point2::new(0.5, 0.5), heading: 0.1 },
+    }
+}
+
+#[tokio::test]
+async fn a_changeset_round_trips_through_a_real_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("store.db");
+    let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
+    let mission = store.create_mission(&spec(), Timestamp(1_000)).await.unwrap();
+    assert_eq!(mission.spec, spec());
+    let mut robot =
+        store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(2_000)).await.unwrap();
+    assert_eq!(robot.state, RobotState::Idle);
+    assert_eq!(robot.home, Point2::new(0.5, 0.5));
+    assert_eq!(store.robot_tokens().await.unwrap(), vec![(robot.id, HASH.to_owned())]);
+
+    let rect = CellRect::new(3, 4, 2, 1);
+    let patch = Patch::from_probabilities(rect, &[0.2, 0.9], &[false, true]).unwrap();
+    let task = TaskRecord {
+        id: 7,
+        mission_id: mission.id,
+        robot_id: robot.id,
+        kind: TaskKind::Goto,
+        target: Point2::new(1.0, 2.0),
+        state: TaskState::Assigned,
+        policy: "operator".into(),
+        utility: 0.5,
+        path_cost: 1.5,
+        gain_region: Some(CellRect::new(1, 2, 3, 4)),
+        created_by: "operator:ana".into(),
+        note: "check the lab".into(),
+        created_at: Timestamp(3_000),
+        updated_at: Timestamp(3_000),
+        transitions: vec![Transition {
+            from: None,
+            to: TaskState::Assigned,
+            at: Timestamp(3_000),
+            cause: "operator ana".into(),
+            actor: Actor::Operator,
+            by: "ana".into(),
+        }],
+    };
+    let frame = spec().frame;
+    let mut labels = vec![0u32; frame.len()];
+    labels[5..40].fill(1);
+    labels[100..130].fill(2);
+    let segmentation = StoredSegmentation {
+        computed_at: Timestamp(3_000),
+        segmentation: Segmentation {
+            frame,
+            labels,
+            segments: vec![
+                Segment { id: 1, cells: 35, bounds: CellRect::new(5, 0, 35, 1), frontier: vec![Cell::new(7, 0)] },
+                Segment { id: 2, cells: 30, bounds: CellRect::new(20, 2, 20, 2), frontier: vec![] },
+            ],
+            critical_points: vec![CriticalPoint { cell: Cell::new(19, 1), clearance: 2.5 }],
+        },
+    };
+    robot.current_task = Some(7);
+    robot.last_map_seq = 5;
+    robot.assignment_version = 1;
+    robot.lost = true;
+    let leftovers = vec![Leftover { reason: LeftoverReason::TooNarrow, cells: 12, position: Point2::new(1.5, 2.5) }];
+    let region = Region {
+        id: 3,
+        mission_id: mission.id,
+        min: Point2::new(0.0, 0.0),
+        max: Point2::new(1.0, 1.0),
+        actor: "ana".into(),
+        reason: "wet floor".into(),
+        created_at: Timestamp(3_000),
+    };
+    let blacklisted = BlacklistEntry {
+        robot_id: robot.id,
+        cell: Cell::new(4, 5),
+        cause: "unreachable".into(),
+        created_at: Timestamp(3_000),
+    };
+    store
+        .commit(&Changeset {
+            mission: Some(MissionCounters {
+                id: mission.id,
+                state: MissionState::Completed,
+                replans: 1,
+                map_updates: 1,
+                paused: true,
+                leftovers: leftovers.clone(),
+            }),
+            robots: vec![robot.clone()],
+            new_tasks: vec![task.clone()],
+            task_changes: vec![],
+            patches: vec![LoggedPatch { robot_id: robot.id, seq: 5, patch: patch.clone() }],
+            policy: Some((mission.id, PolicyConfig::default_for("minpos").unwrap())),
+            events: vec![MissionEvent {
+                id: 0,
+                mission_id: mission.id,
+                at: Timestamp(3_000),
+                kind: "policy_changed".into(),
+                detail: "burgard -> minpos".into(),
+                actor: "ops".into(),
+            }],
+            segmentation: Some((mission.id, segmentation.clone())),
+            blacklisted: vec![blacklisted.clone(), BlacklistEntry { cell: Cell::new(9, 9), ..blacklisted.clone() }],
+            unblacklisted: vec![],
+            forbidden: vec![region.clone(), Region { id: 4, ..region.clone() }],
+            allowed: vec![],
+            robot_tokens: vec![(robot.id, "0".repeat(64))],
+            bids: Some((
+                robot.id,
+                vec![Bid {
+                    target: Point2::new(0.5, 0.5),
+                    path_cost: 1.0,
+                    information_gain: 20.0,
+                    gain_region: (Point2::new(0.0, 0.0), Point2::new(1.0, 1.0)),
+                }],
+            )),
+            at: Some(Timestamp(3_000)),
+        })
+        .await
+        .unwrap();
+    store
+        .commit(&Changeset {
+            task_changes: vec![TaskChange {
+                task_id: 7,
+                state: TaskState::Reached,
+                transition: Transition {
+                    from: Some(TaskState::Assigned),
+                    to: TaskState::Reached,
+                    at: Timestamp(4_000),
+                    cause: "robot arrived".into(),
+                    actor: Actor::Robot,
+                    by: String::new(),
+                },
+            }],
+            unblacklisted: vec![(robot.id, Cell::new(9, 9))],
+            allowed: vec![4],
+            ..Changeset::default()
+        })
+        .await
+        .unwrap();
+    store.close().await;
+
+    // Reopen the file: everything is there.
+    let store = SqliteStore::open(&path, Durability::Normal).await.unwrap();
+    let missions = store.missions().await.unwrap();
+    assert_eq!(missions.len(), 1);
+    assert_eq!(missions[0].replans, 1);
+    assert_eq!(missions[0].spec.lifecycle, spec().lifecycle);
+    assert!(missions[0].paused);
+    assert_eq!(missions[0].state, MissionState::Completed);
+    assert_eq!(missions[0].leftovers, leftovers);
+    assert_eq!(store.blacklist(mission.id).await.unwrap(), vec![blacklisted]);
+    assert_eq!(store.forbidden_regions(mission.id).await.unwrap(), vec![region]);
+    assert_eq!(store.max_region_id().await.unwrap(), 4);
+    assert_eq!(store.robot_tokens().await.unwrap(), vec![(robot.id, "0".repeat(64))]);
+    assert_eq!(store.bids(robot.id).await.unwrap().len(), 1);
+    let missions = store.missions().await.unwrap();
+    assert_eq!(store.robots(&missions[0]).await.unwrap(), vec![robot.clone()]);
+    let patches = store.patches(&missions[0]).await.unwrap();
+    assert_eq!(patches.len(), 1);
+    assert_eq!(patches[0].seq, 5);
+    assert_eq!(patches[0].patch.rect(), rect);
+    assert_eq!(patches[0].patch.log_odds()[0], patch.log_odds()[0]);
+    assert!(patches[0].patch.log_odds()[1].is_nan());
+    assert!(store.open_tasks(mission.id).await.unwrap().is_empty());
+    let tasks =
+        store.tasks(TaskFilter { robot_id: Some(robot.id), ..TaskFilter::mission(mission.id, 10) }).await.unwrap();
+    assert_eq!(tasks.len(), 1);
+    assert_eq!(tasks[0].state, TaskState::Reached);
+    assert_eq!(
+        (tasks[0].kind, tasks[0].created_by.as_str(), tasks[0].note.as_str()),
+        (TaskKind::Goto, "operator:ana", "check the lab")
+    );
+    assert_eq!(tasks[0].transitions.len(), 2);
+    assert_eq!(tasks[0].transitions[0].by, "ana");
+    assert_eq!(tasks[0].transitions[1].actor, Actor::Robot);
+    let filter = TaskFilter { kind: Some(TaskKind::Explore), ..TaskFilter::mission(mission.id, 10) };
+    assert!(store.tasks(filter).await.unwrap().is_empty());
+    let filter = TaskFilter { open_only: true, ..TaskFilter::mission(mission.id, 10) };
+    assert!(store.tasks(filter).await.unwrap().is_empty());
+    assert_eq!(tasks[0].gain_region, Some(CellRect::new(1, 2, 3, 4)));
+    assert_eq!(missions[0].spec.policy.name(), "minpos");
+    let events = store.events(mission.id).await.unwrap();
+    assert_eq!(events.len(), 1);
+    assert_eq!((events[0].kind.as_str(), events[0].actor.as_str()), ("policy_changed", "ops"));
+    assert_eq!(store.segmentation(mission.id).await.unwrap(), Some(segmentation));
+    assert_eq!(store.max_task_id().await.unwrap(), 7);
+}
+
+#[tokio::test]
+async fn a_failed_changeset_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = SqliteStore::open(&dir.path().join("s.db"), Durability::Full).await.unwrap();
+    let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
+    let robot = store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(1)).await.unwrap();
+    let mut moved = robot.clone();
+    moved.last_map_seq = 9;
+    // A task for a robot that does not exist violates a foreign key.
+    let bad_task = TaskRecord {
+        id: 1,
+        mission_id: mission.id,
+        robot_id: 999,
+        kind: TaskKind::Explore,
+        target: Point2::origin(),
+        state: TaskState::Assigned,
+        policy: "burgard".into(),
+        utility: 0.0,
+        path_cost: 0.0,
+        gain_region: None,
+        created_by: "policy".into(),
+        note: String::new(),
+        created_at: Timestamp(1),
+        updated_at: Timestamp(1),
+        transitions: vec![],
+    };
+    let result =
+        store.commit(&Changeset { robots: vec![moved], new_tasks: vec![bad_task], ..Changeset::default() }).await;
+    assert!(result.is_err());
+    assert_eq!(store.robots(&mission).await.unwrap(), vec![robot]);
+}
+
+/// A database holding one mission with one robot, one task and one patch,
+/// closed again; returns the file.
+async fn stored_mission(dir: &std::path::Path) -> std::path::PathBuf {
+    let path = dir.join("s.db");
+    let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
+    let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
+    let robot = store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(1)).await.unwrap();
+    let patch = Patch::from_probabilities(CellRect::new(1, 1, 2, 1), &[0.2, 0.9], &[]).unwrap();
+    store
+        .commit(&Changeset { patches: vec![LoggedPatch { robot_id: robot.id, seq: 1, patch }], ..Changeset::default() })
+        .await
+        .unwrap();
+    store.close().await;
+    drop(store);
+    path
+}
+
+/// Every value read back is checked like input from the network: a bad row
+/// stops the start with the table, the row and the column, never a panic, a
+/// wrap-around or an allocation sized by the row.
+#[tokio::test]
+async fn corrupt_rows_are_refused_naming_table_row_and_column() {
+    let cases = [
+        ("UPDATE missions SET replan_interval_s = -1", "missions row 1: replan_interval_s"),
+        ("UPDATE missions SET lease_s = 1e300", "missions row 1: lease_s"),
+        ("UPDATE missions SET width = 4294967297", "missions row 1: width"),
+        ("UPDATE missions SET width = 20000, height = 20000", "missions row 1: width × height"),
+        ("UPDATE missions SET origin_x = 1e308", "missions row 1: origin.x"),
+        ("UPDATE missions SET policy_params = '{\"beta\": -5}'", "missions row 1"),
+        ("UPDATE missions SET state = 'exploded'", "missions row 1: state"),
+        ("UPDATE missions SET name = 'a' || char(10) || 'b'", "missions row 1: name"),
+        ("UPDATE robots SET pose_x = 1e9", "robots row 1: (pose_x, pose_y)"),
+        ("UPDATE robots SET speed_mps = 0", "robots row 1: speed_mps"),
+        ("UPDATE robots SET last_map_seq = -4", "robots row 1: last_map_seq"),
+        ("UPDATE map_patches SET width = 4000000000", "map_patches row 1"),
+        ("UPDATE map_patches SET cells = x'00'", "map_patches row 1: cells"),
+        ("UPDATE map_patches SET cells = x'0000807f0000807f'", "map_patches row 1"),
+    ];
+    for (edit, expected) in cases {
+        let dir = tempfile::tempdir().unwrap();
+        let path = stored_mission(dir.path()).await;
+        let mut raw = sqlx::SqliteConnection::connect(&format!("sqlite:{}", path.display())).await.unwrap();
+        // An edit by hand need not respect the schema's checks either.
+        sqlx::query("PRAGMA ignore_check_constraints = ON").execute(&mut raw).await.unwrap();
+        sqlx::query(edit).execute(&mut raw).await.unwrap();
+        raw.close().await.unwrap();
+        let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
+        // What the executive reads at start: missions, then each one's robots and patches.
+        let read = async {
+            for mission in store.missions().await? {
+                store.robots(&mission).await?;
+                store.patches(&mission).await?;
+            }
+            Ok::<_, StoreError>(())
+        };
+        let err = read.await.expect_err(edit).to_string();
+        assert!(err.contains(expected), "{edit}: {err}");
+    }
+}
+
+/// A second store on the same file is refused while the first is open, with
+/// the holder named; closing the first lets the next one in.
+#[tokio::test]
+async fn one_store_per_database_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("s.db");
+    let first = SqliteStore::open(&path, Durability::Full).await.unwrap();
+    let err = SqliteStore::open(&path, Durability::Full).await.unwrap_err();
+    assert!(matches!(err, StoreError::Locked(_)), "{err}");
+    assert!(err.to_string().contains(&format!("pid {}", std::process::id())), "{err}");
+    first.close().await;
+    drop(first);
+    SqliteStore::open(&path, Durability::Full).await.unwrap();
+}
+
+/// A backup taken while the store is open holds everything committed, and
+/// opens as a store of its own.
+#[tokio::test]
+async fn a_backup_is_a_consistent_store() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = stored_mission(dir.path()).await;
+    let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
+    let copy = dir.path().join("copy.db");
+    store.backup(&copy).await.unwrap();
+    assert!(store.backup(&copy).await.is_err(), "an existing file is never overwritten");
+    let restored = SqliteStore::open(&copy, Durability::Full).await.unwrap();
+    let missions = restored.missions().await.unwrap();
+    assert_eq!(missions, store.missions().await.unwrap());
+    assert_eq!(restored.patches(&missions[0]).await.unwrap().len(), 1);
+}
