@@ -28,11 +28,15 @@ pub struct ConnectionLimits {
     pub max_connections: usize,
     /// A connection with no open request for this long is closed.
     pub idle_timeout: Duration,
+    /// At shutdown, how long open connections may take to finish before
+    /// they are dropped (a peer that never completes its handshake would
+    /// otherwise hold the shutdown forever).
+    pub drain_grace: Duration,
 }
 
 impl Default for ConnectionLimits {
     fn default() -> Self {
-        Self { max_connections: 10_000, idle_timeout: Duration::from_secs(300) }
+        Self { max_connections: 10_000, idle_timeout: Duration::from_secs(300), drain_grace: Duration::from_secs(10) }
     }
 }
 

@@ -200,15 +200,26 @@ pub async fn run(
         }
         server = server.tls_config(settings)?;
     }
-    let served = server
+    let serve = server
         .layer(connections::ActivityLayer)
         .add_service(health_service)
         .add_service(reflection)
         .add_service(reflection_alpha)
         .add_service(missions)
         .add_service(fleet)
-        .serve_with_incoming_shutdown(incoming, drain)
-        .await;
+        .serve_with_incoming_shutdown(incoming, drain);
+    let grace = config.connections.drain_grace;
+    let draining_too_long = async {
+        streams_end.cancelled().await;
+        tokio::time::sleep(grace).await;
+    };
+    let served = tokio::select! {
+        served = serve => served,
+        () = draining_too_long => {
+            tracing::warn!(?grace, "connections still open after the drain grace: closing them");
+            Ok(())
+        }
+    };
     streams_end.cancel();
     if let Err(e) = sweeper.await {
         tracing::error!(error = %e, "lease sweeper failed");

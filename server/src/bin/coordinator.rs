@@ -100,6 +100,7 @@ async fn main() -> anyhow::Result<()> {
     config.connections = ConnectionLimits {
         max_connections: args.max_connections.max(1),
         idle_timeout: Duration::from_secs_f64(args.idle_timeout),
+        ..ConnectionLimits::default()
     };
     config.durability = match args.durability {
         DurabilityArg::Full => Durability::Full,

@@ -357,7 +357,7 @@ impl Executive {
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
         }
-        self.replan_if_due(&mut mission).await?;
+        self.replan_if_due(&mut mission).await;
         mission.assignment(robot_id)
     }
 
@@ -374,7 +374,7 @@ impl Executive {
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
         }
-        self.replan_if_due(&mut mission).await?;
+        self.replan_if_due(&mut mission).await;
         Ok(MapUpdateOutcome {
             applied_seq: seq,
             assignment: mission.assignment(robot_id)?,
@@ -393,7 +393,7 @@ impl Executive {
         self.store.commit(&changes).await?;
         mission.set_bids(robot_id, &bids);
         mission.heard_from(robot_id, self.settings.clock.now());
-        self.replan_if_due(&mut mission).await?;
+        self.replan_if_due(&mut mission).await;
         Ok((bids.len(), mission.assignment(robot_id)?))
     }
 
@@ -410,7 +410,7 @@ impl Executive {
         let changes = mission.prepare_policy(policy, actor, reason, Timestamp::now());
         self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission_id, policy = mission.record().spec.policy.name(), actor, "policy changed");
-        self.replan_if_due(&mut mission).await?;
+        self.replan_if_due(&mut mission).await;
         Ok(Self::summary(&mission))
     }
 
@@ -496,7 +496,7 @@ impl Executive {
         let changes = mission.prepare_override(robot_id, action, &note, Timestamp::now(), &self.next_task_id)?;
         self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission.record().id, robot = robot_id, ?action, actor = %note.actor, "override");
-        self.replan_if_due(&mut mission).await?;
+        self.replan_if_due(&mut mission).await;
         let record = mission.robot(robot_id)?;
         Ok(RobotSummary {
             record: record.clone(),
@@ -518,7 +518,7 @@ impl Executive {
         let changes = mission.prepare_pause(pause, &note, Timestamp::now())?;
         self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission_id, pause, actor = %note.actor, "mission paused or resumed");
-        self.replan_if_due(&mut mission).await?;
+        self.replan_if_due(&mut mission).await;
         Ok(Self::summary(&mission))
     }
 
@@ -538,7 +538,7 @@ impl Executive {
         let (changes, region) = mission.prepare_forbid(id, min, max, &note, Timestamp::now())?;
         self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission_id, region = id, actor = %note.actor, "region forbidden");
-        self.replan_if_due(&mut mission).await?;
+        self.replan_if_due(&mut mission).await;
         Ok(region)
     }
 
@@ -554,7 +554,7 @@ impl Executive {
         let changes = mission.prepare_allow(region, &note, Timestamp::now())?;
         self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission_id, region, actor = %note.actor, "region allowed");
-        self.replan_if_due(&mut mission).await?;
+        self.replan_if_due(&mut mission).await;
         Ok(Self::summary(&mission))
     }
 
@@ -570,20 +570,33 @@ impl Executive {
     /// those that changed. Runs every [`SWEEP_PERIOD`] while serving.
     pub async fn sweep(&self) -> Result<(), Error> {
         let handles: Vec<_> = self.missions.read().unwrap_or_else(|e| e.into_inner()).values().cloned().collect();
+        let mut failed = None;
         for handle in handles {
             let mut mission = handle.lock().await;
+            if mission.replan_failed() {
+                // A replanning that could not be committed is tried again
+                // here, so that it does not wait for the next request.
+                self.replan_if_due(&mut mission).await;
+            }
             let Some(changes) = mission.prepare_sweep(self.settings.clock.now(), Timestamp::now()) else {
                 continue;
             };
-            self.store.commit(&changes).await?;
+            // One mission's failure does not keep the others from their sweep.
+            if let Err(e) = self.store.commit(&changes).await {
+                failed = Some(e);
+                continue;
+            }
             for change in &changes.task_changes {
                 tracing::info!(mission = mission.record().id, task = change.task_id, state = change.state.as_str(),
                     cause = %change.transition.cause, "task ended by the executive");
             }
             mission.apply(changes);
-            self.replan_if_due(&mut mission).await?;
+            self.replan_if_due(&mut mission).await;
         }
-        Ok(())
+        match failed {
+            Some(e) => Err(e.into()),
+            None => Ok(()),
+        }
     }
 
     /// Makes a changeset durable, then applies it to the mission in memory:
@@ -594,8 +607,18 @@ impl Executive {
         Ok(())
     }
 
-    /// Replans the mission if a trigger fired, and commits the outcome.
-    async fn replan_if_due(&self, mission: &mut Mission) -> Result<(), Error> {
+    /// Replans the mission if a trigger fired, and commits the outcome. The
+    /// request that fired the trigger is already durable and is answered as
+    /// such: a replanning that cannot be committed (a full disk) is logged
+    /// and stays due, to be tried again at the next trigger or sweep.
+    async fn replan_if_due(&self, mission: &mut Mission) {
+        if let Err(e) = self.try_replan(mission).await {
+            tracing::error!(mission = mission.record().id, error = %e, "replanning failed; it stays due");
+            mission.note_replan_failed();
+        }
+    }
+
+    async fn try_replan(&self, mission: &mut Mission) -> Result<(), Error> {
         let now = self.settings.clock.now();
         let Some(reason) = mission.replan_reason(now) else {
             return Ok(());

@@ -174,3 +174,119 @@ pub async fn wait_until_serving(url: &str, within: Duration) {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
 }
+
+/// A small tmpfs mounted for one test, to fill its disk for real; unmounted
+/// when dropped. `None` (and a line saying what is skipped) where mounting
+/// is not allowed (not root, no mount namespace).
+pub struct Tmpfs {
+    dir: tempfile::TempDir,
+}
+
+impl Tmpfs {
+    pub fn mount(size: &str, what: &str) -> Option<Self> {
+        let dir = tempfile::tempdir().unwrap();
+        let status = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(dir.path())
+            .stderr(std::process::Stdio::null())
+            .status();
+        if status.is_ok_and(|s| s.success()) {
+            Some(Self { dir })
+        } else {
+            eprintln!("SKIPPED {what}: mounting a {size} tmpfs needs root (CI runs as root)");
+            None
+        }
+    }
+
+    pub fn path(&self) -> &Path {
+        self.dir.path()
+    }
+
+    /// Fills the disk with a ballast file, then gives `leave` bytes back;
+    /// returns the ballast's path (remove it to free the space).
+    pub fn fill_leaving(&self, leave: u64) -> PathBuf {
+        use std::io::Write;
+        let path = self.path().join("ballast");
+        let mut file = std::fs::File::create(&path).unwrap();
+        let chunk = vec![0xa5u8; 64 * 1024];
+        loop {
+            if let Err(e) = file.write_all(&chunk) {
+                assert_eq!(e.raw_os_error(), Some(28), "only a full disk stops the ballast: {e}");
+                break;
+            }
+        }
+        let _ = file.flush();
+        let len = file.metadata().unwrap().len();
+        file.set_len(len.saturating_sub(leave)).unwrap();
+        file.sync_all().unwrap();
+        path
+    }
+}
+
+impl Drop for Tmpfs {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount").arg("-l").arg(self.dir.path()).status();
+    }
+}
+
+/// Certificates made for one test: a CA, the executive's certificate for
+/// 127.0.0.1 and localhost, and a client certificate, as PEM files in `dir`.
+pub struct Pki {
+    pub ca: PathBuf,
+    pub server_cert: PathBuf,
+    pub server_key: PathBuf,
+    pub client_cert: PathBuf,
+    pub client_key: PathBuf,
+    /// A second CA that signed nothing here, to show that trust is checked.
+    pub other_ca: PathBuf,
+}
+
+impl Pki {
+    pub fn new(dir: &Path) -> Self {
+        use rcgen::{BasicConstraints, CertificateParams, CertifiedIssuer, IsCa, KeyPair};
+        let ca_params = || {
+            let mut params = CertificateParams::new(Vec::<String>::new()).unwrap();
+            params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+            params
+        };
+        let ca = CertifiedIssuer::self_signed(ca_params(), KeyPair::generate().unwrap()).unwrap();
+        let other = CertifiedIssuer::self_signed(ca_params(), KeyPair::generate().unwrap()).unwrap();
+        let leaf = |names: Vec<String>| {
+            let key = KeyPair::generate().unwrap();
+            let cert = CertificateParams::new(names).unwrap().signed_by(&key, &ca).unwrap();
+            (cert.pem(), key.serialize_pem())
+        };
+        let (server_cert, server_key) = leaf(vec!["127.0.0.1".into(), "localhost".into()]);
+        let (client_cert, client_key) = leaf(vec!["robot-0".into()]);
+        let write = |name: &str, text: &str| {
+            let path = dir.join(name);
+            std::fs::write(&path, text).unwrap();
+            path
+        };
+        Self {
+            ca: write("ca.pem", &ca.pem()),
+            server_cert: write("server.pem", &server_cert),
+            server_key: write("server.key", &server_key),
+            client_cert: write("client.pem", &client_cert),
+            client_key: write("client.key", &client_key),
+            other_ca: write("other-ca.pem", &other.pem()),
+        }
+    }
+}
+
+/// Waits until the TLS executive at `url` answers health checks as SERVING.
+pub async fn wait_until_serving_tls(url: &str, tls: &exploration_proto::client::ClientTls, within: Duration) {
+    let deadline = tokio::time::Instant::now() + within;
+    loop {
+        let channel = exploration_proto::client::endpoint(url, Some(tls)).unwrap().connect().await;
+        if let Ok(channel) = channel {
+            let mut health = tonic_health::pb::health_client::HealthClient::new(channel);
+            let answer = health.check(tonic_health::pb::HealthCheckRequest { service: String::new() }).await;
+            if answer.is_ok() {
+                return;
+            }
+        }
+        assert!(tokio::time::Instant::now() < deadline, "the executive at {url} did not come up");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}

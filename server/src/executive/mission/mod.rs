@@ -104,6 +104,8 @@ pub(crate) struct Mission {
     explored_tasks: std::collections::HashSet<TaskId>,
     /// Regions where no target is assigned.
     forbidden: Vec<Region>,
+    /// The last replanning could not be committed: the sweep tries again.
+    replan_failed: bool,
     /// Bumped whenever something an operator watches changes.
     changed: watch::Sender<u64>,
 }
@@ -276,6 +278,7 @@ impl Mission {
             pending_replan: Some("executive restarted".to_owned()),
             explored_tasks: std::collections::HashSet::new(),
             forbidden,
+            replan_failed: false,
             changed: watch::channel(0).0,
             record,
         };
@@ -589,6 +592,20 @@ impl Mission {
         self.check_pose(&heartbeat.pose)?;
         let mut next = Self::moved(robot, heartbeat.pose, now);
         next.state = heartbeat.state;
+        if let Some(named) = heartbeat.task_id.filter(|t| robot.current_task != Some(*t)) {
+            if let Some(other) = self.open_tasks.get(&named).filter(|t| t.robot_id != robot_id) {
+                return Err(Error::FailedPrecondition(format!(
+                    "task {named} is robot {}'s, not robot {robot_id}'s; report on the robot's own task",
+                    other.robot_id
+                )));
+            }
+            // One of its own tasks that has already ended (it was replaced
+            // while the robot drove): the report renews the lease and the
+            // pose, but ends nothing and leaves the robot's state as it was.
+            if matches!(heartbeat.state, RobotState::Arrived | RobotState::Failed) {
+                next.state = robot.state;
+            }
+        }
         let mut changes = Changeset { at: Some(now), ..Changeset::default() };
         let current = robot.current_task.filter(|t| heartbeat.task_id == Some(*t));
         if let Some(task) = current.and_then(|t| self.open_tasks.get(&t)) {
@@ -1063,8 +1080,22 @@ impl Mission {
         }
     }
 
+    /// A replanning was made but could not be committed; it stays due.
+    pub(crate) fn note_replan_failed(&mut self) {
+        self.replan_failed = true;
+        if self.pending_replan.is_none() {
+            self.pending_replan = Some("an earlier replanning could not be committed".to_owned());
+        }
+    }
+
+    /// Whether the last replanning could not be committed.
+    pub(crate) fn replan_failed(&self) -> bool {
+        self.replan_failed
+    }
+
     /// Resets the replanning triggers after a committed replanning.
     pub(crate) fn mark_replanned(&mut self, now: Instant) {
+        self.replan_failed = false;
         let frame = self.record.spec.frame;
         let explored: Vec<TaskId> = self
             .open_tasks

@@ -1,0 +1,89 @@
+//! Tokens travel encrypted: the executive serves TLS with certificates made
+//! in the test (rcgen), the project's clients verify it, and with a client
+//! CA it admits only robots that present a certificate signed by it.
+
+mod common;
+
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use common::{Pki, TestExecutive, bundled_map, wait_until_serving_tls};
+use exploration_proto::client::{ClientTls, endpoint};
+use exploration_proto::v1 as pb;
+use exploration_proto::v1::missions_client::MissionsClient;
+
+const TOKEN: &str = "tls-operator-token-0001";
+
+/// `fleet-sim run --server https://… --tls-ca ca.pem` against
+/// `coordinator --tls-cert … --tls-key …`: the issue's own command.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fleet_explores_through_tls_with_the_real_binaries() {
+    let dir = tempfile::tempdir().unwrap();
+    let pki = Pki::new(dir.path());
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let mut coordinator = Command::new(common::binary("coordinator"))
+        .args(["--listen", &format!("127.0.0.1:{port}"), "--db"])
+        .arg(dir.path().join("tls.db"))
+        .arg("--tls-cert")
+        .arg(&pki.server_cert)
+        .arg("--tls-key")
+        .arg(&pki.server_key)
+        .args(["--operator-token", TOKEN])
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let url = format!("https://127.0.0.1:{port}");
+    let tls = ClientTls::from_files(Some(&pki.ca), None, None).unwrap();
+    wait_until_serving_tls(&url, &tls, Duration::from_secs(30)).await;
+
+    let fleet = Command::new(common::binary("fleet-sim"))
+        .args(["run", "--server", &url, "--tls-ca"])
+        .arg(&pki.ca)
+        .arg("--map")
+        .arg(bundled_map("nav2_depot"))
+        .args(["--robots", "2", "--policy", "nearest", "--cell-size", "0.4", "--json"])
+        .env("COORDINATOR_OPERATOR_TOKEN", TOKEN)
+        .env("RUST_LOG", "warn")
+        .output();
+    let fleet = tokio::task::spawn_blocking(move || fleet).await.unwrap().unwrap();
+    coordinator.kill().unwrap();
+    coordinator.wait().unwrap();
+    assert!(fleet.status.success(), "fleet-sim failed: {}", String::from_utf8_lossy(&fleet.stderr));
+    let stdout = String::from_utf8_lossy(&fleet.stdout);
+    let report: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    assert_eq!(report["completed"], true, "{report}");
+    assert_eq!(report["coverage"], 1.0, "{report}");
+}
+
+async fn list(url: &str, tls: Option<&ClientTls>) -> Result<usize, String> {
+    let channel = endpoint(url, tls).map_err(|e| e.to_string())?.connect().await.map_err(|e| format!("{e:?}"))?;
+    let bearer = exploration_proto::Bearer::new(Some(TOKEN)).unwrap();
+    let mut missions = MissionsClient::with_interceptor(channel, bearer);
+    let listed = missions.list_missions(pb::ListMissionsRequest {}).await.map_err(|s| s.to_string())?;
+    Ok(listed.into_inner().missions.len())
+}
+
+/// With a client CA, only clients presenting a certificate it signed get
+/// in; and clients check the executive's certificate against their CA.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mutual_tls_admits_only_certified_clients_and_clients_check_the_server() {
+    let dir = tempfile::tempdir().unwrap();
+    let pki = Pki::new(dir.path());
+    let mut config = coordinator::Config::new(dir.path().join("mtls.db"));
+    config.tls = Some(coordinator::TlsConfig::from_files(&pki.server_cert, &pki.server_key, Some(&pki.ca)).unwrap());
+    config.operator_token = Some(TOKEN.into());
+    let exec = TestExecutive::start_with(config).await;
+    let url = format!("https://{}", exec.address);
+
+    let certified = ClientTls::from_files(Some(&pki.ca), Some(&pki.client_cert), Some(&pki.client_key)).unwrap();
+    assert_eq!(list(&url, Some(&certified)).await, Ok(0));
+    let anonymous = ClientTls::from_files(Some(&pki.ca), None, None).unwrap();
+    assert!(list(&url, Some(&anonymous)).await.is_err(), "no client certificate, no entry");
+    let wrong_trust =
+        ClientTls::from_files(Some(&pki.other_ca), Some(&pki.client_cert), Some(&pki.client_key)).unwrap();
+    assert!(list(&url, Some(&wrong_trust)).await.is_err(), "the client refuses a server its CA did not sign");
+    let plaintext = format!("http://{}", exec.address);
+    assert!(list(&plaintext, None).await.is_err(), "no plaintext on a TLS port");
+    exec.stop().await;
+}
