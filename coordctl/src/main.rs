@@ -134,6 +134,10 @@ enum Command {
     /// The fused map.
     #[command(subcommand)]
     Map(MapCommand),
+    /// A consistent copy of the executive's whole database, taken while
+    /// missions run, written to FILE (which must not exist); start a
+    /// coordinator with `--db FILE` to resume from it.
+    Backup { file: std::path::PathBuf },
 }
 
 #[derive(Debug, Subcommand)]
@@ -311,6 +315,41 @@ async fn connect(cli: &Cli) -> anyhow::Result<Missions> {
     Ok(MissionsClient::with_interceptor(channel, bearer))
 }
 
+/// Receives a backup into `file`: written beside it first, checked against
+/// the size and SHA-256 the executive sent, synced, then renamed into place.
+async fn backup(api: &mut Missions, file: &std::path::Path) -> anyhow::Result<u64> {
+    use sha2::Digest;
+    use std::io::Write;
+    if file.exists() {
+        return Err(Usage(format!("{} exists; give a new file", file.display())).into());
+    }
+    let partial = file.with_extension("partial");
+    let mut out = std::fs::File::create(&partial).with_context(|| format!("cannot create {}", partial.display()))?;
+    let mut chunks = api.backup(pb::BackupRequest {}).await?.into_inner();
+    let (mut written, mut hash, mut expected) = (0u64, sha2::Sha256::new(), None);
+    while let Some(chunk) = chunks.message().await? {
+        anyhow::ensure!(chunk.offset == written, "the backup arrived out of order");
+        out.write_all(&chunk.data)?;
+        hash.update(&chunk.data);
+        written += chunk.data.len() as u64;
+        if !chunk.sha256.is_empty() {
+            expected = Some((chunk.total_bytes, chunk.sha256));
+        }
+    }
+    let digest: String = hash.finalize().iter().map(|b| format!("{b:02x}")).collect();
+    let Some((total, sha256)) = expected else {
+        let _ = std::fs::remove_file(&partial);
+        anyhow::bail!("the backup stream ended early ({written} bytes)");
+    };
+    if (total, sha256.as_str()) != (written, digest.as_str()) {
+        let _ = std::fs::remove_file(&partial);
+        anyhow::bail!("the backup is damaged: {written} bytes with SHA-256 {digest}, sent {total} with {sha256}");
+    }
+    out.sync_all()?;
+    std::fs::rename(&partial, file).with_context(|| format!("cannot move the backup to {}", file.display()))?;
+    Ok(written)
+}
+
 async fn run(cli: Cli) -> anyhow::Result<()> {
     let mut api = connect(&cli).await?;
     let out = output::Output { json: cli.json };
@@ -399,6 +438,10 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
                     break;
                 }
             }
+        }
+        Command::Backup { file } => {
+            let bytes = backup(&mut api, &file).await?;
+            out.done(&format!("wrote {} ({bytes} bytes, checked)", file.display()));
         }
         Command::Map(MapCommand::Export { mission, png, px, segments }) => {
             let snapshot = api.get_map(pb::GetMapRequest { mission_id: mission }).await?.into_inner();

@@ -441,6 +441,8 @@ async fn smaller_findings_get_precise_statuses_and_change_nothing() {
         .await
         .unwrap()
         .into_inner();
+    let kept = region.area.unwrap();
+    assert_eq!((kept.min_x, kept.min_y, kept.max_x, kept.max_y), (0.0, 0.0, 4.0, 3.0), "kept as the map's part");
     missions
         .allow_region(pb::AllowRegionRequest { mission_id: mission.id, region_id: region.id, ..Default::default() })
         .await
@@ -535,22 +537,29 @@ async fn connections_beyond_the_limit_are_refused_until_one_closes() {
     config.connections.idle_timeout = Duration::from_secs(3600);
     // The raw connections below never speak HTTP/2: shutdown does not wait for them.
     config.connections.drain_grace = Duration::from_millis(100);
-    let exec = TestExecutive::start_with(config).await;
-    let first = tokio::net::TcpStream::connect(exec.address).await.unwrap();
-    let _second = tokio::net::TcpStream::connect(exec.address).await.unwrap();
+    // Served without the readiness probe of TestExecutive, whose own
+    // connection would count against the limit of two.
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let address = listener.local_addr().unwrap();
+    let stop = tokio_util::sync::CancellationToken::new();
+    let served = tokio::spawn(coordinator::run(listener, stop.clone().cancelled_owned(), config));
+    let first = tokio::net::TcpStream::connect(address).await.unwrap();
+    let _second = tokio::net::TcpStream::connect(address).await.unwrap();
     // Nothing closes a connection within the hour but the limit.
-    let mut third = tokio::net::TcpStream::connect(exec.address).await.unwrap();
+    let mut third = tokio::net::TcpStream::connect(address).await.unwrap();
     tokio::time::timeout(Duration::from_secs(20), until_closed(&mut third)).await.expect("over the limit: closed");
     // Once one closes, calls get through again.
     drop(first);
     let deadline = tokio::time::Instant::now() + Duration::from_secs(20);
     loop {
-        let mut missions = exec.missions();
+        let channel = tonic::transport::Endpoint::from_shared(format!("http://{address}")).unwrap().connect_lazy();
+        let mut missions = pb::missions_client::MissionsClient::new(channel);
         if missions.list_missions(pb::ListMissionsRequest {}).await.is_ok() {
             break;
         }
         assert!(tokio::time::Instant::now() < deadline, "a freed place is given to the next connection");
         tokio::task::yield_now().await;
     }
-    exec.stop().await;
+    stop.cancel();
+    served.await.unwrap().unwrap();
 }

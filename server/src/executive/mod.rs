@@ -56,6 +56,27 @@ impl Default for ExecutiveSettings {
     }
 }
 
+/// A backup copy of the store on disk; removed when dropped.
+#[derive(Debug)]
+pub struct BackupFile(std::path::PathBuf);
+
+impl BackupFile {
+    /// The copy.
+    pub fn path(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+impl Drop for BackupFile {
+    fn drop(&mut self) {
+        if let Err(e) = std::fs::remove_file(&self.0)
+            && e.kind() != std::io::ErrorKind::NotFound
+        {
+            tracing::warn!(path = %self.0.display(), error = %e, "cannot remove a backup copy");
+        }
+    }
+}
+
 /// The missions and grid cells an executive holds, against its limits.
 #[derive(Debug)]
 struct Usage(std::sync::Mutex<(usize, u64)>);
@@ -564,6 +585,17 @@ impl Executive {
         let handle = self.mission_handle(mission_id)?;
         let mission = handle.lock().await;
         Ok(mission.subscribe())
+    }
+
+    /// A consistent copy of the whole store, taken while missions run, in a
+    /// file beside the store that is removed when the copy is dropped.
+    pub async fn backup(&self) -> Result<BackupFile, Error> {
+        static TAKEN: AtomicU64 = AtomicU64::new(0);
+        let name = format!(".backup-{}-{}.db", std::process::id(), TAKEN.fetch_add(1, Ordering::Relaxed));
+        // The guard first: a copy that fails halfway is removed too.
+        let file = BackupFile(self.store.backup_dir().join(name));
+        self.store.backup(&file.0).await?;
+        Ok(file)
     }
 
     /// Expires leases and detects stalls in every mission, then replans

@@ -300,9 +300,71 @@ impl Missions for ExplorationService {
         let mission = self.executive.allow_region(id, region, note).await?;
         Ok(Response::new((&mission).into()))
     }
+
+    type BackupStream = BackupStream;
+
+    #[tracing::instrument(skip_all)]
+    async fn backup(&self, request: Request<pb::BackupRequest>) -> Result<Response<Self::BackupStream>, Status> {
+        let caller = self.operator(&request, "taking a backup")?;
+        let copy = self.executive.backup().await?;
+        let file = tokio::fs::File::open(copy.path())
+            .await
+            .map_err(|e| Error::Internal(format!("opening the backup copy: {e}")))?;
+        let total = file.metadata().await.map_err(|e| Error::Internal(format!("sizing the backup copy: {e}")))?.len();
+        tracing::info!(actor = %caller.actor("operator"), bytes = total, "backup taken");
+        Ok(Response::new(backup_chunks(copy, file, total)))
+    }
 }
 
 type AssignmentStream = Pin<Box<dyn Stream<Item = Result<pb::Assignment, Status>> + Send>>;
+type BackupStream = Pin<Box<dyn Stream<Item = Result<pb::BackupChunk, Status>> + Send>>;
+
+/// Bytes per backup chunk.
+const BACKUP_CHUNK: usize = 1 << 20;
+
+/// Streams a backup copy in chunks, the last one carrying the file's SHA-256;
+/// the copy is removed once the stream ends or is dropped.
+fn backup_chunks(copy: crate::executive::BackupFile, file: tokio::fs::File, total: u64) -> BackupStream {
+    use sha2::Digest;
+    use tokio::io::AsyncReadExt;
+    struct State {
+        _copy: crate::executive::BackupFile,
+        file: tokio::fs::File,
+        offset: u64,
+        hash: sha2::Sha256,
+        done: bool,
+    }
+    let state = State { _copy: copy, file, offset: 0, hash: sha2::Sha256::new(), done: false };
+    Box::pin(futures::stream::unfold(state, move |mut state| async move {
+        if state.done {
+            return None;
+        }
+        let mut data = vec![0; BACKUP_CHUNK];
+        let mut filled = 0;
+        while filled < data.len() {
+            match state.file.read(&mut data[filled..]).await {
+                Ok(0) => break,
+                Ok(n) => filled += n,
+                Err(e) => {
+                    state.done = true;
+                    let status = Status::from(Error::Internal(format!("reading the backup copy: {e}")));
+                    return Some((Err(status), state));
+                }
+            }
+        }
+        data.truncate(filled);
+        state.hash.update(&data);
+        let offset = state.offset;
+        state.offset += filled as u64;
+        state.done = state.offset >= total || filled == 0;
+        let sha256 = if state.done {
+            state.hash.clone().finalize().iter().map(|b| format!("{b:02x}")).collect()
+        } else {
+            String::new()
+        };
+        Some((Ok(pb::BackupChunk { offset, data, total_bytes: total, sha256 }), state))
+    }))
+}
 type MissionViewStream = Pin<Box<dyn Stream<Item = Result<pb::MissionView, Status>> + Send>>;
 
 #[tonic::async_trait]

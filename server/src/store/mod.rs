@@ -257,4 +257,8 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// Writes a consistent copy of the whole store, taken while it is in
     /// use, to a new file at `path`.
     async fn backup(&self, path: &std::path::Path) -> Result<(), StoreError>;
+
+    /// Where a backup may be written for a while (the same disk as the store,
+    /// which must have room for it).
+    fn backup_dir(&self) -> std::path::PathBuf;
 }

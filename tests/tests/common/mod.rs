@@ -36,7 +36,37 @@ impl TestExecutive {
         let address = listener.local_addr().unwrap();
         let stop = CancellationToken::new();
         let task = tokio::spawn(coordinator::run(listener, stop.clone().cancelled_owned(), config));
-        Self { address, url: format!("http://{address}"), db, stop, task }
+        let mut exec = Self { address, url: format!("http://{address}"), db, stop, task };
+        exec.until_serving().await;
+        exec
+    }
+
+    /// Waits until the executive answers, or says why it stopped instead.
+    async fn until_serving(&mut self) {
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(60);
+        loop {
+            if self.task.is_finished() {
+                let outcome = (&mut self.task).await;
+                panic!("the executive stopped at start: {outcome:?}");
+            }
+            let channel = tonic::transport::Endpoint::from_shared(self.url.clone()).unwrap().connect_lazy();
+            let mut health = tonic_health::pb::health_client::HealthClient::new(channel);
+            if health.check(tonic_health::pb::HealthCheckRequest { service: String::new() }).await.is_ok() {
+                return;
+            }
+            assert!(tokio::time::Instant::now() < deadline, "the executive at {} did not come up", self.url);
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    }
+
+    /// Starts on `config` and expects the start to fail; returns why.
+    pub async fn start_fails(config: coordinator::Config) -> coordinator::ServeError {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let never = std::future::pending::<()>();
+        match coordinator::run(listener, never, config).await {
+            Err(e) => e,
+            Ok(()) => panic!("the executive started"),
+        }
     }
 
     /// Shuts down gracefully and waits until it has stopped.

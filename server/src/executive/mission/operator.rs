@@ -236,12 +236,14 @@ impl Mission {
         note: &OperatorNote,
         now: Timestamp,
     ) -> Result<(Changeset, Region), Error> {
-        if self.cell_rect(min, max).is_none() {
+        let Some(cells) = self.cell_rect(min, max) else {
             return Err(Error::InvalidArgument(format!(
                 "region ({:.2}, {:.2})..({:.2}, {:.2}) does not overlap the mission map",
                 min.x, min.y, max.x, max.y
             )));
-        }
+        };
+        // Kept as the part on the map: the cells it forbids, in metres.
+        let (min, max) = self.world_rect(cells);
         let region = Region {
             id,
             mission_id: self.record.id,

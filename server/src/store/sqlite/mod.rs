@@ -362,6 +362,13 @@ impl Store for SqliteStore {
         sqlx::query("VACUUM INTO ?1").bind(target).execute(&self.pool).await?;
         Ok(())
     }
+
+    fn backup_dir(&self) -> PathBuf {
+        match self.path.parent() {
+            Some(dir) if !dir.as_os_str().is_empty() => dir.to_owned(),
+            _ => PathBuf::from("."),
+        }
+    }
 }
 
 #[cfg(test)]

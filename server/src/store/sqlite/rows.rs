@@ -92,9 +92,8 @@ impl<'a> At<'a> {
     }
 
     fn point(self, row: &SqliteRow, x: &str, y: &str) -> Result<Point2, StoreError> {
-        let x = validate::coordinate(self.get(row, x)?, x).map_err(|e| self.invalid(e))?;
-        let y = validate::coordinate(self.get(row, y)?, y).map_err(|e| self.invalid(e))?;
-        Ok(Point2::new(x, y))
+        // Finite is enough: every use clips world points to the grid in f64.
+        Ok(Point2::new(self.finite(row, x)?, self.finite(row, y)?))
     }
 
     fn on_map(self, row: &SqliteRow, x: &str, y: &str, frame: &GridFrame) -> Result<Point2, StoreError> {
@@ -139,7 +138,7 @@ fn leftovers_from_json(at: At<'_>, json: &str) -> Result<Vec<Leftover>, StoreErr
             let reason = l["reason"].as_str().and_then(LeftoverReason::parse).ok_or_else(|| bad("reason"))?;
             let coordinate = |key: &str| {
                 let v = l[key].as_f64().ok_or_else(|| bad(key))?;
-                validate::coordinate(v, &format!("leftovers.{key}")).map_err(|e| at.invalid(e))
+                validate::finite(v, &format!("leftovers.{key}")).map_err(|e| at.invalid(e))
             };
             Ok(Leftover {
                 reason,
