@@ -257,8 +257,8 @@ impl SimRobot {
             async move { client.register_robot(request).await }
         })
         .await?;
-        let mut client =
-            FleetClient::with_interceptor(channel, bearer(Some(&response.token))?).max_decoding_message_size(64 << 20);
+        let mut client = FleetClient::with_interceptor(channel, bearer(Some(&response.token))?)
+            .max_decoding_message_size(exploration_proto::MAX_MESSAGE_BYTES);
         let robot = response.robot.ok_or_else(|| RobotError::Rpc {
             what: "RegisterRobot",
             status: Status::internal("the response holds no robot"),

@@ -312,7 +312,9 @@ async fn connect(cli: &Cli) -> anyhow::Result<Missions> {
         .await
         .with_context(|| format!("cannot reach the executive at {}", cli.server))?;
     let bearer = Bearer::new(cli.token.as_deref()).map_err(|_| Usage("the token holds invalid characters".into()))?;
-    Ok(MissionsClient::with_interceptor(channel, bearer))
+    // A whole map of a big mission is larger than gRPC's default 4 MiB.
+    Ok(MissionsClient::with_interceptor(channel, bearer)
+        .max_decoding_message_size(exploration_proto::MAX_MESSAGE_BYTES))
 }
 
 /// Receives a backup into `file`: written beside it first, checked against

@@ -13,6 +13,10 @@ pub mod v1 {
     pub const FILE_DESCRIPTOR_SET: &[u8] = tonic::include_file_descriptor_set!("exploration_v1_descriptor");
 }
 
+/// Largest message a client or the executive decodes: a map update with big
+/// patches, a whole 25-million-cell map with its frontier.
+pub const MAX_MESSAGE_BYTES: usize = 64 * 1024 * 1024;
+
 /// Prost's codec, except that a message that is not valid protobuf is
 /// INVALID_ARGUMENT (the sender's error), not INTERNAL.
 pub mod codec {

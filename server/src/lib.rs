@@ -138,7 +138,7 @@ async fn sweep_until(executive: Arc<Executive>, stop: CancellationToken) {
 }
 
 /// Largest request the executive decodes (a map update with big patches).
-pub const MAX_MESSAGE_BYTES: usize = 64 * 1024 * 1024;
+pub const MAX_MESSAGE_BYTES: usize = exploration_proto::MAX_MESSAGE_BYTES;
 
 /// Serves the executive on `listener` until `shutdown` resolves, then stops
 /// accepting, ends assignment streams, lets in-flight requests finish and

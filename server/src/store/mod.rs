@@ -36,6 +36,9 @@ pub enum StoreError {
     /// Another executive holds the store.
     #[error("{0}")]
     Locked(String),
+    /// The path cannot hold a durable store.
+    #[error("{0}")]
+    Path(String),
     /// The lock file could not be made or read.
     #[error("lock file {path}: {source}")]
     LockFile {

@@ -50,6 +50,7 @@ impl SqliteStore {
     /// Opens (creating if needed) the database at `path` and applies
     /// migrations; refused while another executive holds it.
     pub async fn open(path: &Path, durability: Durability) -> Result<Self, StoreError> {
+        check_path(path)?;
         let lock = StoreLock::acquire(path)?;
         let options = SqliteConnectOptions::from_str("sqlite:")?
             .filename(path)
@@ -85,6 +86,24 @@ impl SqliteStore {
             .fetch_optional(&self.pool)
             .await?;
         row.map(|row| rows::frame_from_row(At::row("missions", &row, "id")?, &row)).transpose()
+    }
+}
+
+/// Refuses what is not a database file SQLite can keep across restarts: an
+/// in-memory database (each pooled connection would get its own, and all of
+/// it would be lost), a folder, or a file in a folder that does not exist.
+fn check_path(path: &Path) -> Result<(), StoreError> {
+    let text = path.to_string_lossy();
+    let bad = |why: String| Err(StoreError::Path(format!("--db {}: {why}", path.display())));
+    if text.is_empty() || text == ":memory:" || text.starts_with("file:") || text.contains("mode=memory") {
+        return bad("the executive keeps everything it acknowledges in a database file: give a file path".to_owned());
+    }
+    if path.is_dir() {
+        return bad("is a folder; give a file in it (created if missing)".to_owned());
+    }
+    match path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        Some(dir) if !dir.is_dir() => bad(format!("the folder {} does not exist", dir.display())),
+        _ => Ok(()),
     }
 }
 

@@ -336,6 +336,22 @@ async fn one_store_per_database_file() {
     SqliteStore::open(&path, Durability::Full).await.unwrap();
 }
 
+/// Only a file keeps what is acknowledged: in-memory databases, folders and
+/// files in missing folders are refused with the reason.
+#[tokio::test]
+async fn only_database_files_are_opened() {
+    let dir = tempfile::tempdir().unwrap();
+    for (path, why) in [
+        (std::path::PathBuf::from(":memory:"), "database file"),
+        (std::path::PathBuf::from("file:x?mode=memory"), "database file"),
+        (dir.path().to_owned(), "is a folder"),
+        (dir.path().join("missing/x.db"), "does not exist"),
+    ] {
+        let err = SqliteStore::open(&path, Durability::Full).await.unwrap_err();
+        assert!(matches!(err, StoreError::Path(_)) && err.to_string().contains(why), "{path:?}: {err}");
+    }
+}
+
 /// A backup taken while the store is open holds everything committed, and
 /// opens as a store of its own.
 #[tokio::test]
