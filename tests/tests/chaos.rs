@@ -6,26 +6,14 @@
 
 mod common;
 
-use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use client_sim::RunConfig;
 use client_sim::fleet::WorldSpec;
 use client_sim::generate::Generator;
-use common::{binary, bundled_map, wait_until_serving};
+use common::{bundled_map, spawn_coordinator, wait_until_serving};
 use exploration::rng::SplitMix64;
 use exploration_proto::v1 as pb;
-
-fn spawn_coordinator(port: u16, db: &std::path::Path) -> Child {
-    Command::new(binary("coordinator"))
-        .args(["--listen", &format!("127.0.0.1:{port}"), "--db"])
-        .arg(db)
-        .env("RUST_LOG", "error")
-        .stdout(Stdio::null())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("coordinator starts")
-}
 
 /// The twenty missions: maps and generated worlds, every policy.
 fn missions(url: &str) -> Vec<RunConfig> {
@@ -66,7 +54,7 @@ async fn twenty_missions_survive_sigkill_at_random_moments() {
     let db = dir.path().join("chaos.db");
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
     let url = format!("http://127.0.0.1:{port}");
-    let mut child = spawn_coordinator(port, &db);
+    let mut child = spawn_coordinator(port, &db, "error");
     wait_until_serving(&url, Duration::from_secs(30)).await;
 
     // Five fleets at a time, twenty in all.
@@ -96,7 +84,7 @@ async fn twenty_missions_survive_sigkill_at_random_moments() {
             child.wait().unwrap();
             kills += 1;
             mark += 100 + rng.below(600);
-            child = spawn_coordinator(port, &db);
+            child = spawn_coordinator(port, &db, "error");
             wait_until_serving(&url, Duration::from_secs(30)).await;
         }
         tokio::time::sleep(Duration::from_millis(5)).await;

@@ -4,24 +4,12 @@
 
 mod common;
 
-use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use client_sim::RunConfig;
-use common::{binary, bundled_map, wait_until_serving};
+use common::{bundled_map, spawn_coordinator, wait_until_serving};
 use exploration_proto::v1 as pb;
 use exploration_proto::v1::missions_client::MissionsClient;
-
-fn spawn_coordinator(port: u16, db: &std::path::Path) -> Child {
-    Command::new(binary("coordinator"))
-        .args(["--listen", &format!("127.0.0.1:{port}"), "--db"])
-        .arg(db)
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("coordinator starts")
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_fleet_survives_a_killed_executive() {
@@ -32,7 +20,7 @@ async fn the_fleet_survives_a_killed_executive() {
         probe.local_addr().unwrap().port()
     };
     let url = format!("http://127.0.0.1:{port}");
-    let mut child = spawn_coordinator(port, &db);
+    let mut child = spawn_coordinator(port, &db, "warn");
     wait_until_serving(&url, Duration::from_secs(30)).await;
 
     let mut config = RunConfig::new(bundled_map("mrpb_maze"), 3, "burgard");
@@ -55,7 +43,7 @@ async fn the_fleet_survives_a_killed_executive() {
     };
     child.kill().unwrap();
     child.wait().unwrap();
-    let mut child = spawn_coordinator(port, &db);
+    let mut child = spawn_coordinator(port, &db, "warn");
     wait_until_serving(&url, Duration::from_secs(30)).await;
 
     let report = fleet.await.unwrap().unwrap();

@@ -324,3 +324,15 @@ pub async fn wait_until_serving_tls(url: &str, tls: &exploration_proto::client::
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
 }
+
+/// The `coordinator` binary serving `db` on 127.0.0.1:`port`, logging at `log`.
+pub fn spawn_coordinator(port: u16, db: &Path, log: &str) -> std::process::Child {
+    std::process::Command::new(binary("coordinator"))
+        .args(["--listen", &format!("127.0.0.1:{port}"), "--db"])
+        .arg(db)
+        .env("RUST_LOG", log)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::inherit())
+        .spawn()
+        .expect("coordinator starts")
+}

@@ -79,6 +79,16 @@ impl SqliteStore {
         &self.path
     }
 
+    /// Every row `sql` selects for `key` (its one parameter), read by `read`.
+    async fn all<T>(
+        &self,
+        sql: &'static str,
+        key: u64,
+        read: impl Fn(&sqlx::sqlite::SqliteRow) -> Result<T, StoreError>,
+    ) -> Result<Vec<T>, StoreError> {
+        sqlx::query(sql).bind(key as i64).fetch_all(&self.pool).await?.iter().map(read).collect()
+    }
+
     /// The grid frame of a mission, checked.
     async fn frame(&self, mission_id: MissionId) -> Result<Option<exploration::grid::GridFrame>, StoreError> {
         let row = sqlx::query("SELECT id, resolution, origin_x, origin_y, width, height FROM missions WHERE id = ?1")
@@ -220,26 +230,22 @@ impl Store for SqliteStore {
     }
 
     async fn blacklist(&self, mission_id: MissionId) -> Result<Vec<BlacklistEntry>, StoreError> {
-        sqlx::query(
+        self.all(
             "SELECT b.* FROM blacklist b JOIN robots r ON r.id = b.robot_id WHERE r.mission_id = ?1
              ORDER BY b.created_at, b.robot_id",
+            mission_id,
+            rows::blacklist_from_row,
         )
-        .bind(mission_id as i64)
-        .fetch_all(&self.pool)
-        .await?
-        .iter()
-        .map(rows::blacklist_from_row)
-        .collect()
+        .await
     }
 
     async fn forbidden_regions(&self, mission_id: MissionId) -> Result<Vec<Region>, StoreError> {
-        sqlx::query("SELECT * FROM forbidden_regions WHERE mission_id = ?1 AND allowed_at IS NULL ORDER BY id")
-            .bind(mission_id as i64)
-            .fetch_all(&self.pool)
-            .await?
-            .iter()
-            .map(rows::region_from_row)
-            .collect()
+        self.all(
+            "SELECT * FROM forbidden_regions WHERE mission_id = ?1 AND allowed_at IS NULL ORDER BY id",
+            mission_id,
+            rows::region_from_row,
+        )
+        .await
     }
 
     async fn max_region_id(&self) -> Result<u64, StoreError> {
@@ -250,35 +256,28 @@ impl Store for SqliteStore {
     }
 
     async fn robots(&self, mission: &MissionRecord) -> Result<Vec<RobotRecord>, StoreError> {
-        sqlx::query("SELECT * FROM robots WHERE mission_id = ?1 ORDER BY id")
-            .bind(mission.id as i64)
-            .fetch_all(&self.pool)
-            .await?
-            .iter()
-            .map(|row| rows::robot_from_row(row, &mission.spec.frame))
-            .collect()
+        self.all("SELECT * FROM robots WHERE mission_id = ?1 ORDER BY id", mission.id, |row| {
+            rows::robot_from_row(row, &mission.spec.frame)
+        })
+        .await
     }
 
     async fn patches(&self, mission: &MissionRecord) -> Result<Vec<LoggedPatch>, StoreError> {
-        sqlx::query(
+        self.all(
             "SELECT id, robot_id, seq, x, y, width, height, cells FROM map_patches WHERE mission_id = ?1 ORDER BY id",
+            mission.id,
+            |row| rows::patch_from_row(row, &mission.spec.frame),
         )
-        .bind(mission.id as i64)
-        .fetch_all(&self.pool)
-        .await?
-        .iter()
-        .map(|row| rows::patch_from_row(row, &mission.spec.frame))
-        .collect()
+        .await
     }
 
     async fn open_tasks(&self, mission_id: MissionId) -> Result<Vec<TaskRecord>, StoreError> {
-        sqlx::query("SELECT * FROM tasks WHERE mission_id = ?1 AND state IN ('assigned', 'active') ORDER BY id")
-            .bind(mission_id as i64)
-            .fetch_all(&self.pool)
-            .await?
-            .iter()
-            .map(rows::task_from_row)
-            .collect()
+        self.all(
+            "SELECT * FROM tasks WHERE mission_id = ?1 AND state IN ('assigned', 'active') ORDER BY id",
+            mission_id,
+            rows::task_from_row,
+        )
+        .await
     }
 
     async fn tasks(&self, filter: TaskFilter) -> Result<Vec<TaskRecord>, StoreError> {
@@ -322,23 +321,12 @@ impl Store for SqliteStore {
     }
 
     async fn bids(&self, robot_id: RobotId) -> Result<Vec<Bid>, StoreError> {
-        sqlx::query("SELECT * FROM bids WHERE robot_id = ?1 ORDER BY ordinal")
-            .bind(robot_id as i64)
-            .fetch_all(&self.pool)
-            .await?
-            .iter()
-            .map(rows::bid_from_row)
-            .collect()
+        self.all("SELECT * FROM bids WHERE robot_id = ?1 ORDER BY ordinal", robot_id, rows::bid_from_row).await
     }
 
     async fn events(&self, mission_id: MissionId) -> Result<Vec<MissionEvent>, StoreError> {
-        sqlx::query("SELECT * FROM mission_events WHERE mission_id = ?1 ORDER BY id")
-            .bind(mission_id as i64)
-            .fetch_all(&self.pool)
-            .await?
-            .iter()
-            .map(rows::event_from_row)
-            .collect()
+        self.all("SELECT * FROM mission_events WHERE mission_id = ?1 ORDER BY id", mission_id, rows::event_from_row)
+            .await
     }
 
     async fn segmentation(&self, mission_id: MissionId) -> Result<Option<StoredSegmentation>, StoreError> {
