@@ -1,0 +1,496 @@
+//! Replanning, the mission's side: when a plan is due (Burgard et al. 2005,
+//! §II-C), the snapshot a plan is made on ([`PlanningJob`]), running the
+//! policy on it off the mission's lock, and what a plan changes
+//! ([`Mission::prepare_plan`]). When and where plans are made is the
+//! executive's planner.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::sync::atomic::AtomicU64;
+
+use tokio::time::Instant;
+
+use exploration::cost::CostCache;
+use exploration::frontier::{FrontierCluster, FrontierMap, clusters};
+use exploration::grid::{Cell, CellRect, OccupancyGrid};
+use exploration::policy::{Bid as PolicyBid, CurrentTask, Plan, PlanningInput, Policy, RobotView};
+
+use super::{HOME_TOLERANCE_M, Mission, RobotSlot, TaskDraft, lifecycle, transition};
+use crate::domain::{
+    Actor, BY_EXECUTIVE, BY_POLICY, Leftover, MissionState, RobotId, StoredSegmentation, TaskId, TaskKind, TaskState,
+    Timestamp,
+};
+use crate::store::Changeset;
+
+/// Everything needed to run a policy off the mission's lock.
+#[derive(Debug)]
+pub(crate) struct PlanningJob {
+    /// The robots in the policy's pool, in the mission's order: the plan's order.
+    order: Vec<RobotId>,
+    /// One part per coordination scope: the whole team, or each connected
+    /// sub-team when the mission is scoped by communication.
+    parts: Vec<PlanningPart>,
+    /// Forbidden regions, in cells.
+    forbidden: Vec<CellRect>,
+    /// Blacklist entries found expired: the map around them changed.
+    expired: Vec<(RobotId, Cell)>,
+    min_frontier_size: usize,
+    policy: Arc<dyn Policy>,
+    threads: usize,
+    seed: u64,
+}
+
+/// What a planning job produced.
+#[derive(Debug)]
+pub(crate) struct JobOutcome {
+    /// Targets of the robots in the pool.
+    pub(crate) plan: Plan,
+    /// For robots exploring an operator's region: the region's next frontier,
+    /// `None` when no reachable frontier is left inside.
+    pub(super) region_targets: Vec<(RobotId, Option<exploration::policy::Target>)>,
+    /// No robot can explore anything more: the map of some scope has no
+    /// frontier left (Burgard et al. 2005 §VI-D: as soon as the known area
+    /// in the map of one robot covers the whole environment), or no robot
+    /// can reach or may be sent to what is left.
+    pub(crate) complete: bool,
+    /// Nobody was in the pool (every robot lost or overridden) and the map
+    /// has frontier: whether the mission is complete cannot be told, so it
+    /// keeps its state.
+    undecided: bool,
+    /// What is left at completion, and why.
+    leftovers: Vec<Leftover>,
+    expired: Vec<(RobotId, Cell)>,
+}
+
+/// One coordination scope: its robots and the map they hold.
+#[derive(Debug)]
+struct PlanningPart {
+    grid: OccupancyGrid,
+    /// Every frontier cluster of the map.
+    all_clusters: Vec<FrontierCluster>,
+    /// The clusters the policy may choose from: large enough, forbidden
+    /// cells and pinned frontiers taken out.
+    clusters: Vec<FrontierCluster>,
+    /// The robots in the policy's pool.
+    robots: Vec<RobotView>,
+    bids: Vec<Vec<PolicyBid>>,
+    /// Targets of robots outside the scope, with their sensor ranges.
+    reserved: Vec<(Cell, f64)>,
+    /// Robots exploring an operator's region, with the region.
+    regions: Vec<(RobotView, CellRect)>,
+    /// The map holds known cells and no frontier.
+    explored: bool,
+}
+
+impl PlanningJob {
+    /// Runs the policy on every part; CPU-bound.
+    pub(crate) fn run(self) -> JobOutcome {
+        let mut targets = vec![None; self.order.len()];
+        let mut segmentation = None;
+        let mut largest = 0;
+        let mut region_targets = Vec::new();
+        let mut caches: Vec<CostCache<'_>> = self.parts.iter().map(|part| CostCache::new(&part.grid)).collect();
+        for (part, cache) in self.parts.iter().zip(&mut caches) {
+            if !part.robots.is_empty() {
+                let input = PlanningInput {
+                    grid: &part.grid,
+                    clusters: &part.clusters,
+                    robots: &part.robots,
+                    threads: self.threads,
+                    bids: &part.bids,
+                    seed: self.seed,
+                    reserved: &part.reserved,
+                };
+                let plan = self.policy.plan(&input, cache);
+                for (robot, target) in part.robots.iter().zip(plan.targets) {
+                    if let Some(slot) = self.order.iter().position(|id| *id == robot.id) {
+                        targets[slot] = target;
+                    }
+                }
+                if part.robots.len() > largest {
+                    largest = part.robots.len();
+                    segmentation = plan.segmentation;
+                }
+            }
+            for (robot, region) in &part.regions {
+                let target = lifecycle::region_target(&part.all_clusters, robot, *region, &self.forbidden, cache);
+                region_targets.push((robot.id, target));
+            }
+        }
+        let explored = self.parts.iter().any(|part| part.explored);
+        let idle_pool = !self.order.is_empty() && targets.iter().all(Option::is_none);
+        let mut complete = explored;
+        let mut leftovers = Vec::new();
+        if !explored && idle_pool {
+            // The policy found nothing for anyone: is anything left that some robot could explore?
+            complete = true;
+            for (part, cache) in self.parts.iter().zip(&mut caches) {
+                if part.robots.is_empty() {
+                    continue;
+                }
+                let remaining = exploration::completion::remaining_frontier(
+                    &part.all_clusters,
+                    self.min_frontier_size,
+                    &part.robots,
+                    &self.forbidden,
+                    cache,
+                    self.threads,
+                );
+                complete &= remaining.is_exhausted();
+                let frame = part.grid.frame();
+                leftovers.extend(remaining.left.iter().map(|&(i, reason)| Leftover {
+                    reason: lifecycle::leftover_reason(reason),
+                    cells: part.all_clusters[i].len(),
+                    position: frame.world_from_cell(part.all_clusters[i].representative),
+                }));
+            }
+            if !complete {
+                leftovers.clear();
+            }
+        }
+        let undecided = self.order.is_empty() && !explored;
+        JobOutcome {
+            plan: Plan { targets, segmentation },
+            region_targets,
+            complete,
+            undecided,
+            leftovers,
+            expired: self.expired,
+        }
+    }
+}
+
+impl Mission {
+    /// Why the mission should replan now, if it should (Burgard et al. 2005,
+    /// §II-C: when a robot reached its target, or travelled or waited long
+    /// enough; and when the frontier changed enough).
+    pub(crate) fn replan_reason(&self, now: Instant) -> Option<String> {
+        if self.robots.is_empty() || self.record.paused {
+            return None;
+        }
+        if let Some(reason) = &self.pending_replan {
+            return Some(reason.clone());
+        }
+        let frame = &self.record.spec.frame;
+        let settings = &self.record.spec.replan;
+        let scoped = self.record.spec.scoped_by_communication;
+        for slot in self.robots.values() {
+            let robot = &slot.record;
+            if let Some(task) = robot.current_task.and_then(|t| self.open_tasks.get(&t)) {
+                let on_frontier = match task.kind {
+                    TaskKind::Explore | TaskKind::Pin => true,
+                    TaskKind::Goto => task.gain_region.is_some(),
+                    TaskKind::Hold | TaskKind::Home => false,
+                };
+                let explored = frame.cell_from_world(&task.target).is_none_or(|cell| !self.frontier.contains(cell));
+                // Once per task: a policy may keep a robot on an explored target.
+                if on_frontier && explored && !self.explored_tasks.contains(&task.id) {
+                    return Some(format!("target of robot {} explored", robot.id));
+                }
+                let travelled = robot.distance_m - robot.assigned_distance_m;
+                if travelled >= settings.distance_m {
+                    return Some(format!("robot {} travelled {travelled:.1} m", robot.id));
+                }
+            } else if self.frontier_churn > 0 && !self.frontier.is_empty() {
+                return Some(format!("robot {} idle and the frontier changed", robot.id));
+            } else if scoped && self.layer_changes > 0 && self.record.state != MissionState::Completed {
+                // Its sub-team's map may still have a frontier the fused map has not.
+                return Some(format!("robot {} idle and its sub-team's map changed", robot.id));
+            }
+        }
+        let threshold = ((self.frontier_at_replan as f64) * settings.frontier_change).max(1.0);
+        if self.frontier_churn as f64 >= threshold {
+            return Some(format!("frontier changed by {} cells", self.frontier_churn));
+        }
+        let changed = self.frontier_churn > 0 || (scoped && self.layer_changes > 0);
+        if changed && now.duration_since(self.last_replan) >= settings.interval {
+            return Some("replanning interval elapsed".to_owned());
+        }
+        if self.record.state == MissionState::Completed && self.frontier_churn > 0 {
+            return Some("the frontier changed after completion".to_owned());
+        }
+        None
+    }
+
+    /// The inputs of a replanning.
+    pub(crate) fn planning_job(&self, threads: usize) -> PlanningJob {
+        let frame = &self.record.spec.frame;
+        let expired = self.expired_blacklist();
+        let view = |slot: &RobotSlot| {
+            let r = &slot.record;
+            RobotView {
+                id: r.id,
+                cell: frame.cell_from_world_unchecked(&r.pose.position),
+                capabilities: r.capabilities,
+                current: r.current_task.and_then(|t| self.open_tasks.get(&t)).and_then(|task| {
+                    frame
+                        .cell_from_world(&task.target)
+                        .map(|target| CurrentTask { target, gain_region: task.gain_region })
+                }),
+                excluded: {
+                    let live: Vec<Cell> = slot
+                        .blacklist
+                        .iter()
+                        .map(|b| b.entry.cell)
+                        .filter(|cell| !expired.contains(&(r.id, *cell)))
+                        .collect();
+                    live.iter().map(|&cell| lifecycle::exclusion(frame, cell, &live)).collect()
+                },
+            }
+        };
+        let forbidden: Vec<CellRect> = self.forbidden.iter().filter_map(|r| self.cell_rect(r.min, r.max)).collect();
+        // Frontier pinned to a robot is not offered to the others.
+        let pinned: Vec<Cell> = self
+            .open_tasks
+            .values()
+            .filter(|t| t.kind == TaskKind::Pin)
+            .filter_map(|t| frame.cell_from_world(&t.target))
+            .collect();
+        let min_size = self.record.spec.policy.min_frontier_size();
+        let choosable = |all: &[FrontierCluster]| -> Vec<FrontierCluster> {
+            all.iter()
+                .filter(|c| c.len() >= min_size && !pinned.iter().any(|p| c.cells.contains(p)))
+                .filter_map(|c| c.retain(|cell| !forbidden.iter().any(|r| r.contains(cell))))
+                .collect()
+        };
+        let allowed = |cell: Cell| !forbidden.iter().any(|r| r.contains(cell));
+        let bids_of = |id: &RobotId| {
+            let mut bids = self.bids.get(id).cloned().unwrap_or_default();
+            bids.retain(|b| allowed(b.target));
+            bids
+        };
+        let part = |members: &[RobotId], grid: OccupancyGrid, frontier: &FrontierMap| {
+            let all_clusters = clusters(frontier, 1);
+            let pool: Vec<&RobotSlot> =
+                members.iter().map(|id| &self.robots[id]).filter(|s| self.in_pool(&s.record)).collect();
+            let regions = members
+                .iter()
+                .map(|id| &self.robots[id])
+                .filter(|s| !s.record.lost)
+                .filter_map(|s| {
+                    let task = s.record.current_task.and_then(|t| self.open_tasks.get(&t))?;
+                    let region = task.gain_region.filter(|_| task.kind == TaskKind::Goto)?;
+                    Some((view(s), region))
+                })
+                .collect();
+            let reserved = self
+                .robots
+                .values()
+                .filter(|s| !members.contains(&s.record.id))
+                .filter_map(|s| {
+                    let target = self.target_of(&s.record)?;
+                    Some((frame.cell_from_world(&target)?, s.record.capabilities.sensor_range_m))
+                })
+                .collect();
+            PlanningPart {
+                clusters: choosable(&all_clusters),
+                explored: frontier.is_empty() && grid.cells().iter().any(|&c| c != exploration::grid::UNKNOWN),
+                all_clusters,
+                grid,
+                robots: pool.iter().map(|s| view(s)).collect(),
+                bids: pool.iter().map(|s| bids_of(&s.record.id)).collect(),
+                reserved,
+                regions,
+            }
+        };
+        let parts = if self.record.spec.scoped_by_communication {
+            self.sub_teams()
+                .into_iter()
+                .map(|members| {
+                    let grid = self.fusion.grid_of(&members);
+                    let frontier = FrontierMap::detect(&grid);
+                    part(&members, grid, &frontier)
+                })
+                .collect()
+        } else {
+            let members: Vec<RobotId> = self.robots.keys().copied().collect();
+            let mut whole = part(&members, self.fusion.grid().clone(), &self.frontier);
+            whole.reserved.clear();
+            whole.explored = self.known_cells > 0 && self.frontier.is_empty();
+            vec![whole]
+        };
+        PlanningJob {
+            order: self.robots.values().filter(|s| self.in_pool(&s.record)).map(|s| s.record.id).collect(),
+            parts,
+            forbidden,
+            expired,
+            min_frontier_size: min_size,
+            policy: self.policy.clone(),
+            threads,
+            // Randomized policies draw from the mission and its replanning count: reproducible.
+            seed: self.record.id.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.record.replans,
+        }
+    }
+
+    /// The connected sub-teams of the communication graph the robots
+    /// reported, each in robot order; robots that reported no peers are alone.
+    fn sub_teams(&self) -> Vec<Vec<RobotId>> {
+        let ids: Vec<RobotId> = self.robots.keys().copied().collect();
+        let mut team: BTreeMap<RobotId, usize> = ids.iter().enumerate().map(|(k, id)| (*id, k)).collect();
+        let root = |team: &BTreeMap<RobotId, usize>, mut k: usize| {
+            while ids[k] != ids[team[&ids[k]]] {
+                k = team[&ids[k]];
+            }
+            k
+        };
+        for slot in self.robots.values() {
+            for peer in &slot.peers {
+                if team.contains_key(peer) {
+                    let (a, b) = (root(&team, team[&slot.record.id]), root(&team, team[peer]));
+                    if a != b {
+                        let (low, high) = (a.min(b), a.max(b));
+                        team.insert(ids[high], low);
+                    }
+                }
+            }
+        }
+        let mut groups: BTreeMap<usize, Vec<RobotId>> = BTreeMap::new();
+        for (k, id) in ids.iter().enumerate() {
+            groups.entry(root(&team, k)).or_default().push(*id);
+        }
+        groups.into_values().collect()
+    }
+
+    /// Records whom a robot can communicate with now.
+    pub(crate) fn set_peers(&mut self, robot: RobotId, peers: Vec<RobotId>) {
+        let Some(slot) = self.robots.get_mut(&robot).filter(|s| s.peers != peers) else { return };
+        slot.peers = peers;
+        if self.record.spec.scoped_by_communication {
+            self.pending_replan = Some(format!("robot {robot}'s sub-team changed"));
+        }
+    }
+
+    /// Describes what a plan changes: tasks that end, tasks that start, robots
+    /// whose assignment moves, and the mission's state.
+    pub(crate) fn prepare_plan(
+        &self,
+        outcome: &JobOutcome,
+        reason: &str,
+        now: Timestamp,
+        task_ids: &AtomicU64,
+    ) -> Changeset {
+        let frame = &self.record.spec.frame;
+        let completed = outcome.complete;
+        let mut changes = Changeset { at: Some(now), ..Changeset::default() };
+        let policy = self.record.spec.policy.name();
+        let pool = self.robots.values().filter(|s| self.in_pool(&s.record));
+        for (slot, target) in pool.zip(&outcome.plan.targets) {
+            let robot = &slot.record;
+            let current = robot.current_task.and_then(|t| self.open_tasks.get(&t));
+            let wanted = if completed {
+                // Burgard et al. 2005 stop here; a fleet also wants its robots back.
+                let home = self.record.spec.lifecycle.rendezvous.unwrap_or(robot.home);
+                let at_home = (robot.pose.position - home).norm() <= HOME_TOLERANCE_M.max(2.0 * frame.resolution);
+                (!at_home && !slot.home_failed).then(|| TaskDraft {
+                    kind: TaskKind::Home,
+                    target: home,
+                    created_by: BY_EXECUTIVE.to_owned(),
+                    note: "mission complete".to_owned(),
+                    policy: BY_EXECUTIVE.to_owned(),
+                    utility: 0.0,
+                    path_cost: 0.0,
+                    gain_region: None,
+                })
+            } else {
+                target.as_ref().map(|t| TaskDraft {
+                    kind: TaskKind::Explore,
+                    target: frame.world_from_cell(t.cell),
+                    created_by: BY_POLICY.to_owned(),
+                    note: String::new(),
+                    policy: policy.to_owned(),
+                    utility: t.utility,
+                    path_cost: t.path_cost,
+                    gain_region: t.gain_region,
+                })
+            };
+            let keep = match (current, &wanted) {
+                (Some(task), Some(w)) => {
+                    task.kind == w.kind && frame.cell_from_world(&task.target) == frame.cell_from_world(&w.target)
+                }
+                (None, None) => true,
+                _ => false,
+            };
+            let mut next = robot.clone();
+            // The distance trigger counts from the latest replanning.
+            next.assigned_distance_m = next.distance_m;
+            if keep {
+                if next != *robot {
+                    changes.robots.push(next);
+                }
+                continue;
+            }
+            if let Some(task) = current {
+                let (state, cause, actor) = if completed {
+                    (TaskState::Cancelled, "mission complete: no reachable frontier left".to_owned(), Actor::Executive)
+                } else {
+                    (TaskState::Preempted, reason.to_owned(), Actor::Policy)
+                };
+                changes.task_changes.push(transition(task, state, &cause, actor, now));
+            }
+            next.current_task = None;
+            if let Some(draft) = wanted {
+                let actor = if completed { Actor::Executive } else { Actor::Policy };
+                let task = self.open_task(robot.id, draft, reason, actor, "", now, task_ids);
+                next.current_task = Some(task.id);
+                changes.new_tasks.push(task);
+            }
+            next.assignment_version += 1;
+            changes.robots.push(next);
+        }
+        self.prepare_overrides(outcome, now, task_ids, &mut changes);
+        changes.unblacklisted.extend(outcome.expired.iter().copied());
+        let mut counters = self.counters();
+        counters.replans += 1;
+        if !outcome.undecided {
+            counters.state = if completed { MissionState::Completed } else { MissionState::Active };
+            counters.leftovers = if completed { outcome.leftovers.clone() } else { Vec::new() };
+        }
+        if counters.state != self.record.state {
+            // Every robot's assignment carries the mission state: push it.
+            for slot in self.robots.values() {
+                if !changes.robots.iter().any(|r| r.id == slot.record.id) {
+                    let mut next = slot.record.clone();
+                    next.assignment_version += 1;
+                    changes.robots.push(next);
+                }
+            }
+        }
+        changes.mission = Some(counters);
+        if let Some(segmentation) = &outcome.plan.segmentation {
+            changes.segmentation =
+                Some((self.record.id, StoredSegmentation { computed_at: now, segmentation: segmentation.clone() }));
+        }
+        changes
+    }
+
+    /// A replanning was made but could not be committed; it stays due.
+    pub(crate) fn note_replan_failed(&mut self) {
+        self.replan_failed = true;
+        if self.pending_replan.is_none() {
+            self.pending_replan = Some("an earlier replanning could not be committed".to_owned());
+        }
+    }
+
+    /// Whether the last replanning could not be committed.
+    pub(crate) fn replan_failed(&self) -> bool {
+        self.replan_failed
+    }
+
+    /// Resets the replanning triggers after a committed replanning.
+    pub(crate) fn mark_replanned(&mut self, now: Instant) {
+        self.replan_failed = false;
+        let frame = self.record.spec.frame;
+        let explored: Vec<TaskId> = self
+            .open_tasks
+            .values()
+            .filter(|t| frame.cell_from_world(&t.target).is_none_or(|c| !self.frontier.contains(c)))
+            .map(|t| t.id)
+            .collect();
+        self.explored_tasks = explored.into_iter().collect();
+        self.last_replan = now;
+        self.frontier_at_replan = self.frontier.len();
+        self.frontier_churn = 0;
+        self.layer_changes = 0;
+        self.pending_replan = None;
+    }
+}
