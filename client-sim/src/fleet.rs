@@ -499,6 +499,9 @@ async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<
             }),
             replan: None,
             scoped_by_communication: limited,
+            // A run steps in lock-step with the executive's plans: a seed
+            // gives the same run at any speed.
+            lockstep: true,
             lifecycle: Some(pb::LifecycleSettings {
                 lease_s: config.lease_s.unwrap_or(0.0),
                 stall_s: config.stall_s.unwrap_or(0.0),

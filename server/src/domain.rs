@@ -100,6 +100,10 @@ pub struct MissionSpec {
     pub replan: ReplanSettings,
     /// Each connected sub-team is coordinated apart (Burgard et al. 2005, §II-D).
     pub scoped_by_communication: bool,
+    /// Each request that makes a replanning due is answered after it
+    /// (simulations: deterministic); otherwise plans are made off the
+    /// request path.
+    pub lockstep: bool,
     /// Leases, stall detection, rendezvous.
     pub lifecycle: LifecycleSettings,
 }

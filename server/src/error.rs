@@ -31,6 +31,9 @@ pub enum Error {
     /// The token does not allow this.
     #[error("{0}")]
     PermissionDenied(String),
+    /// Too much work is waiting: refused at once, to be retried after a pause.
+    #[error("{0}")]
+    Overloaded(String),
     /// The executive is shutting down.
     #[error("the executive is shutting down; retry against its successor")]
     ShuttingDown,
@@ -72,6 +75,7 @@ impl From<Error> for tonic::Status {
             Error::Unauthenticated(m) => Status::unauthenticated(m),
             Error::PermissionDenied(m) => Status::permission_denied(m),
             Error::ShuttingDown => Status::unavailable(e.to_string()),
+            Error::Overloaded(m) => overloaded(m),
             // Internals are logged here, once, and never shown to the client.
             Error::Store(cause) => {
                 tracing::error!(error = %cause, "store failure");
@@ -95,4 +99,15 @@ impl From<Error> for tonic::Status {
             }
         }
     }
+}
+
+/// How long a client should wait before retrying a call refused to shed
+/// load, in the header gRPC's own retry machinery reads.
+pub const RETRY_PUSHBACK_MS: u64 = 100;
+
+/// RESOURCE_EXHAUSTED with a retry hint (`grpc-retry-pushback-ms`).
+pub fn overloaded(message: String) -> tonic::Status {
+    let mut status = tonic::Status::resource_exhausted(message);
+    status.metadata_mut().insert("grpc-retry-pushback-ms", RETRY_PUSHBACK_MS.into());
+    status
 }

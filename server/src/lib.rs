@@ -29,6 +29,8 @@ pub mod connections;
 pub mod domain;
 pub mod error;
 pub mod executive;
+pub mod http;
+pub mod metrics;
 pub mod service;
 pub mod store;
 pub mod validate;
@@ -148,11 +150,31 @@ pub async fn run(
     shutdown: impl Future<Output = ()> + Send + 'static,
     config: Config,
 ) -> Result<(), ServeError> {
+    run_with(Listeners { grpc: listener, http: None }, shutdown, config).await
+}
+
+/// What an executive serves on: gRPC, and optionally HTTP (`/metrics`).
+#[derive(Debug)]
+pub struct Listeners {
+    /// The gRPC services.
+    pub grpc: TcpListener,
+    /// The HTTP routes (see [`http`]); none when `None`.
+    pub http: Option<TcpListener>,
+}
+
+/// [`run`] with every listener.
+pub async fn run_with(
+    listeners: Listeners,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+    config: Config,
+) -> Result<(), ServeError> {
+    let Listeners { grpc: listener, http: http_listener } = listeners;
     let auth = auth::Authenticator::new(config.operator_token.as_deref(), config.operator_tokens_file.as_deref())?;
     let address = listener.local_addr().ok();
     warn_about_exposure(&auth, address, config.tls.is_some());
     let store = SqliteStore::open(&config.db_path, config.durability).await?;
-    let executive = match Executive::open(Arc::new(store.clone()), config.executive).await {
+    let metrics = Arc::new(metrics::Metrics::new());
+    let executive = match Executive::open(Arc::new(store.clone()), config.executive, Arc::clone(&metrics)).await {
         Ok(executive) => Arc::new(executive),
         Err(e) => {
             store.close().await;
@@ -161,8 +183,14 @@ pub async fn run(
     };
     let streams_end = CancellationToken::new();
     let sweeper = tokio::spawn(sweep_until(executive.clone(), streams_end.clone()));
-    let (missions, fleet) =
-        service::ExplorationService::new(executive, streams_end.clone()).into_servers(auth, MAX_MESSAGE_BYTES);
+    let http_server = http_listener.map(|listener| {
+        tracing::info!(address = ?listener.local_addr().ok(), "HTTP serving /metrics");
+        let stop = streams_end.clone().cancelled_owned();
+        let app = http::router(Arc::clone(&executive));
+        tokio::spawn(async move { axum::serve(listener, app).with_graceful_shutdown(stop).await })
+    });
+    let (missions, fleet) = service::ExplorationService::new(Arc::clone(&executive), streams_end.clone())
+        .into_servers(auth, MAX_MESSAGE_BYTES);
 
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<service::MissionsService>().await;
@@ -202,6 +230,7 @@ pub async fn run(
     }
     let serve = server
         .layer(connections::ActivityLayer)
+        .layer(metrics::RpcMetricsLayer(Arc::clone(&metrics)))
         .add_service(health_service)
         .add_service(reflection)
         .add_service(reflection_alpha)
@@ -224,6 +253,14 @@ pub async fn run(
     if let Err(e) = sweeper.await {
         tracing::error!(error = %e, "lease sweeper failed");
     }
+    if let Some(server) = http_server {
+        match server.await {
+            Ok(Err(e)) => tracing::error!(error = %e, "the HTTP server failed"),
+            Err(e) => tracing::error!(error = %e, "the HTTP server task failed"),
+            Ok(Ok(())) => {}
+        }
+    }
+    executive.close().await;
     store.close().await;
     served?;
     tracing::info!("executive stopped");

@@ -286,7 +286,7 @@ fn map_fusion_of_arbitrary_patches() {
 /// One call of a sequence against the real executive.
 #[derive(Debug, Clone)]
 enum Call {
-    Create(Option<pb::MapFrame>, u8),
+    Create(Option<pb::MapFrame>, u8, bool),
     Register(usize, String, Option<pb::Pose>),
     Update(usize, i64, Option<pb::Pose>, Vec<pb::MapPatch>),
     Heartbeat(usize, i32, i64, Option<pb::Pose>),
@@ -307,7 +307,8 @@ fn call() -> impl Strategy<Value = Call> {
     let near = (0.0..4.0f64, 0.0..4.0f64).prop_map(|(x, y)| Some(pb::Pose { x, y, theta: 0.0 }));
     let pose = prop_oneof![3 => near, 1 => pose()];
     prop_oneof![
-        1 => (prop_oneof![4 => small_frame, 1 => frame()], any::<u8>()).prop_map(|(f, p)| Call::Create(f, p)),
+        1 => (prop_oneof![4 => small_frame, 1 => frame()], any::<u8>(), any::<bool>())
+            .prop_map(|(f, p, l)| Call::Create(f, p, l)),
         2 => (0..4usize, prop_oneof![3 => "r[0-3]", 1 => wild_text()], pose.clone()).prop_map(|(m, n, p)| Call::Register(m, n, p)),
         5 => (0..8usize, -2..4i64, pose.clone(), proptest::collection::vec(map_patch(), 0..3)).prop_map(|(r, s, p, q)| Call::Update(r, s, p, q)),
         2 => (0..8usize, -1..6i32, -1..3i64, pose).prop_map(|(r, s, t, p)| Call::Heartbeat(r, s, t, p)),
@@ -352,9 +353,10 @@ async fn play(calls: Vec<Call>) -> Result<(), TestCaseError> {
     let robot_of = |ids: &[u64], i: usize| ids.get(i % ids.len().max(1)).copied().unwrap_or(1);
     for call in calls {
         match call {
-            Call::Create(frame, p) => {
+            Call::Create(frame, p, lockstep) => {
                 let policy = Some(pb::PolicySpec { name: POLICIES[p as usize % 9].into(), params: Default::default() });
-                let request = pb::CreateMissionRequest { name: "fuzz".into(), frame, policy, ..Default::default() };
+                let request =
+                    pb::CreateMissionRequest { name: "fuzz".into(), frame, policy, lockstep, ..Default::default() };
                 match missions.create_mission(request).await {
                     Ok(m) => {
                         let m = m.into_inner();
@@ -499,7 +501,8 @@ fn api_call_sequences() {
 
 /// A mission every sequence starts with, so that the others have something to act on.
 fn small_create() -> impl Strategy<Value = Call> {
-    (1..40u32, 1..40u32, any::<u8>()).prop_map(|(w, h, p)| {
-        Call::Create(Some(pb::MapFrame { resolution: 0.1, origin: None, width: w.max(10), height: h.max(10) }), p)
+    (1..40u32, 1..40u32, any::<u8>(), any::<bool>()).prop_map(|(w, h, p, lockstep)| {
+        let frame = pb::MapFrame { resolution: 0.1, origin: None, width: w.max(10), height: h.max(10) };
+        Call::Create(Some(frame), p, lockstep)
     })
 }

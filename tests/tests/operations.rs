@@ -77,6 +77,7 @@ impl Site {
             frame: Some(common::frame(60, 20)),
             policy: Some(pb::PolicySpec { name: policy.into(), params: Default::default() }),
             lifecycle: Some(pb::LifecycleSettings { lease_s, stall_s, rendezvous: None }),
+            lockstep: true,
             ..Default::default()
         };
         self.operator().create_mission(request).await.unwrap().into_inner()

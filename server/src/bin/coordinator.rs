@@ -56,6 +56,10 @@ struct Args {
     /// Seconds after which a connection with no open call is closed.
     #[arg(long, env = "COORDINATOR_IDLE_TIMEOUT", default_value_t = 300.0)]
     idle_timeout: f64,
+    /// Serve Prometheus metrics over HTTP at this address (GET /metrics); off
+    /// unless given.
+    #[arg(long, env = "COORDINATOR_METRICS")]
+    metrics: Option<SocketAddr>,
     /// Log format.
     #[arg(long, env = "COORDINATOR_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     log_format: LogFormat,
@@ -110,7 +114,16 @@ async fn main() -> anyhow::Result<()> {
         planner_threads: args.planner_threads.unwrap_or(ExecutiveSettings::default().planner_threads).max(1),
         ..ExecutiveSettings::default()
     };
-    coordinator::run(listener, shutdown_signal(), config).await.context("the executive failed")
+    let http = match args.metrics {
+        Some(address) => Some(
+            tokio::net::TcpListener::bind(address)
+                .await
+                .with_context(|| format!("cannot listen for metrics on {address}"))?,
+        ),
+        None => None,
+    };
+    let listeners = coordinator::Listeners { grpc: listener, http };
+    coordinator::run_with(listeners, shutdown_signal(), config).await.context("the executive failed")
 }
 
 /// Resolves on SIGTERM or SIGINT.

@@ -10,7 +10,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, RwLock};
 
-use tokio::sync::{Mutex, watch};
+use tokio::sync::watch;
 
 use exploration::grid::OccupancyGrid;
 use exploration::math::Point2;
@@ -26,8 +26,12 @@ use crate::store::{Changeset, Store, TaskFilter};
 use exploration::policy::PolicyConfig;
 
 mod mission;
+mod planner;
 
 use mission::{Mission, StoredMission};
+use planner::{MissionCell, Planner};
+
+use crate::metrics::Metrics;
 
 /// Limits and knobs of an executive.
 #[derive(Debug, Clone)]
@@ -42,6 +46,9 @@ pub struct ExecutiveSettings {
     pub max_total_cells: u64,
     /// What leases, stalls and replanning intervals are timed by.
     pub clock: Clock,
+    /// Most robot requests waiting for one mission; more are refused with
+    /// RESOURCE_EXHAUSTED.
+    pub max_queued_per_mission: usize,
 }
 
 impl Default for ExecutiveSettings {
@@ -52,6 +59,7 @@ impl Default for ExecutiveSettings {
             max_robots_per_mission: 1_000,
             max_total_cells: 400_000_000,
             clock: Clock::default(),
+            max_queued_per_mission: 256,
         }
     }
 }
@@ -173,9 +181,11 @@ pub struct MapView {
 pub struct Executive {
     store: Arc<dyn Store>,
     settings: ExecutiveSettings,
-    missions: RwLock<BTreeMap<MissionId, Arc<Mutex<Mission>>>>,
+    missions: RwLock<BTreeMap<MissionId, Arc<MissionCell>>>,
     robot_missions: RwLock<HashMap<RobotId, MissionId>>,
-    next_task_id: AtomicU64,
+    next_task_id: Arc<AtomicU64>,
+    planner: Arc<Planner>,
+    metrics: Arc<Metrics>,
     next_region_id: AtomicU64,
     usage: Usage,
     /// Each robot's token hash.
@@ -184,7 +194,11 @@ pub struct Executive {
 
 impl Executive {
     /// Loads every mission from the store, where it was.
-    pub async fn open(store: Arc<dyn Store>, settings: ExecutiveSettings) -> Result<Self, Error> {
+    pub async fn open(
+        store: Arc<dyn Store>,
+        settings: ExecutiveSettings,
+        metrics: Arc<Metrics>,
+    ) -> Result<Self, Error> {
         let mut missions = BTreeMap::new();
         let mut robot_missions = HashMap::new();
         let mut total_cells = 0u64;
@@ -216,10 +230,25 @@ impl Executive {
             for (robot, robot_bids) in bids {
                 mission.set_bids(robot, &robot_bids);
             }
-            missions.insert(id, Arc::new(Mutex::new(mission)));
+            missions.insert(id, Arc::new(MissionCell::new(mission)));
         }
         let missions_count = missions.len();
-        let next_task_id = store.max_task_id().await?;
+        let next_task_id = Arc::new(AtomicU64::new(store.max_task_id().await?));
+        let planner = Planner::new(
+            Arc::clone(&store),
+            settings.clock.clone(),
+            settings.planner_threads,
+            Arc::clone(&next_task_id),
+            Arc::clone(&metrics),
+        );
+        for cell in missions.values() {
+            planner.start(Arc::clone(cell));
+            // Missions planned off the request path replan now, not at the next request.
+            let mut mission = cell.lock().await;
+            if !mission.record().spec.lockstep {
+                planner.after_change(cell, &mut mission).await;
+            }
+        }
         let next_region_id = store.max_region_id().await?;
         let tokens = store.robot_tokens().await?.into_iter().collect();
         Ok(Self {
@@ -227,14 +256,16 @@ impl Executive {
             settings,
             missions: RwLock::new(missions),
             robot_missions: RwLock::new(robot_missions),
-            next_task_id: AtomicU64::new(next_task_id),
+            next_task_id,
+            planner,
+            metrics,
             next_region_id: AtomicU64::new(next_region_id),
             usage: Usage::new(missions_count, total_cells),
             tokens: RwLock::new(tokens),
         })
     }
 
-    fn mission_handle(&self, id: MissionId) -> Result<Arc<Mutex<Mission>>, Error> {
+    fn mission_handle(&self, id: MissionId) -> Result<Arc<MissionCell>, Error> {
         let missions = self.missions.read().unwrap_or_else(|e| e.into_inner());
         missions
             .get(&id)
@@ -242,7 +273,7 @@ impl Executive {
             .ok_or_else(|| Error::NotFound(format!("mission {id} does not exist; ListMissions shows the missions")))
     }
 
-    fn mission_of_robot(&self, robot: RobotId) -> Result<Arc<Mutex<Mission>>, Error> {
+    fn mission_of_robot(&self, robot: RobotId) -> Result<Arc<MissionCell>, Error> {
         let mission = {
             let index = self.robot_missions.read().unwrap_or_else(|e| e.into_inner());
             index.get(&robot).copied()
@@ -251,6 +282,13 @@ impl Executive {
             Some(m) => self.mission_handle(m),
             None => Err(Error::NotFound(format!("robot {robot} does not exist; register it with RegisterRobot first"))),
         }
+    }
+
+    /// A mission for a robot's request, unless too many already wait for it.
+    async fn lock_for_request<'a>(&self, cell: &'a MissionCell) -> Result<tokio::sync::MutexGuard<'a, Mission>, Error> {
+        cell.lock_for_request(self.settings.max_queued_per_mission).await.inspect_err(|_| {
+            self.metrics.shed("mission queue full");
+        })
     }
 
     fn summary(mission: &Mission) -> MissionSummary {
@@ -284,7 +322,9 @@ impl Executive {
         tracing::info!(mission = record.id, policy = record.spec.policy.name(), cells, "mission created");
         let mission = Mission::new(record.clone(), self.settings.clock.now());
         let summary = Self::summary(&mission);
-        self.missions.write().unwrap_or_else(|e| e.into_inner()).insert(record.id, Arc::new(Mutex::new(mission)));
+        let cell = Arc::new(MissionCell::new(mission));
+        self.planner.start(Arc::clone(&cell));
+        self.missions.write().unwrap_or_else(|e| e.into_inner()).insert(record.id, cell);
         Ok(summary)
     }
 
@@ -370,7 +410,7 @@ impl Executive {
     /// Applies a robot's report, then replans if it asked for it.
     pub async fn heartbeat(&self, robot_id: RobotId, heartbeat: Heartbeat) -> Result<Assignment, Error> {
         let handle = self.mission_of_robot(robot_id)?;
-        let mut mission = handle.lock().await;
+        let mut mission = self.lock_for_request(&handle).await?;
         let peers = heartbeat.peers.clone();
         let changes = mission.prepare_heartbeat(robot_id, heartbeat, Timestamp::now())?;
         self.commit(&mut mission, changes).await?;
@@ -378,14 +418,14 @@ impl Executive {
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
         }
-        self.replan_if_due(&mut mission).await;
+        self.planner.after_change(&handle, &mut mission).await;
         mission.assignment(robot_id)
     }
 
     /// Applies a robot's map update exactly once, then replans if due.
     pub async fn update_map(&self, robot_id: RobotId, update: MapUpdate) -> Result<MapUpdateOutcome, Error> {
         let handle = self.mission_of_robot(robot_id)?;
-        let mut mission = handle.lock().await;
+        let mut mission = self.lock_for_request(&handle).await?;
         let seq = update.seq;
         let peers = update.peers.clone();
         let changes = mission.prepare_update(robot_id, update, Timestamp::now())?;
@@ -395,7 +435,7 @@ impl Executive {
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
         }
-        self.replan_if_due(&mut mission).await;
+        self.planner.after_change(&handle, &mut mission).await;
         Ok(MapUpdateOutcome {
             applied_seq: seq,
             assignment: mission.assignment(robot_id)?,
@@ -407,14 +447,14 @@ impl Executive {
     /// Replaces a robot's bids; the `simmons` policy replans on them.
     pub async fn submit_bids(&self, robot_id: RobotId, bids: Vec<Bid>) -> Result<(usize, Assignment), Error> {
         let handle = self.mission_of_robot(robot_id)?;
-        let mut mission = handle.lock().await;
+        let mut mission = self.lock_for_request(&handle).await?;
         mission.check_bids(robot_id, &bids)?;
         let changes =
             Changeset { bids: Some((robot_id, bids.clone())), at: Some(Timestamp::now()), ..Changeset::default() };
         self.store.commit(&changes).await?;
         mission.set_bids(robot_id, &bids);
         mission.heard_from(robot_id, self.settings.clock.now());
-        self.replan_if_due(&mut mission).await;
+        self.planner.after_change(&handle, &mut mission).await;
         Ok((bids.len(), mission.assignment(robot_id)?))
     }
 
@@ -431,7 +471,7 @@ impl Executive {
         let changes = mission.prepare_policy(policy, actor, reason, Timestamp::now());
         self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission_id, policy = mission.record().spec.policy.name(), actor, "policy changed");
-        self.replan_if_due(&mut mission).await;
+        self.planner.after_change(&handle, &mut mission).await;
         Ok(Self::summary(&mission))
     }
 
@@ -517,7 +557,7 @@ impl Executive {
         let changes = mission.prepare_override(robot_id, action, &note, Timestamp::now(), &self.next_task_id)?;
         self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission.record().id, robot = robot_id, ?action, actor = %note.actor, "override");
-        self.replan_if_due(&mut mission).await;
+        self.planner.after_change(&handle, &mut mission).await;
         let record = mission.robot(robot_id)?;
         Ok(RobotSummary {
             record: record.clone(),
@@ -539,7 +579,7 @@ impl Executive {
         let changes = mission.prepare_pause(pause, &note, Timestamp::now())?;
         self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission_id, pause, actor = %note.actor, "mission paused or resumed");
-        self.replan_if_due(&mut mission).await;
+        self.planner.after_change(&handle, &mut mission).await;
         Ok(Self::summary(&mission))
     }
 
@@ -559,7 +599,7 @@ impl Executive {
         let (changes, region) = mission.prepare_forbid(id, min, max, &note, Timestamp::now())?;
         self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission_id, region = id, actor = %note.actor, "region forbidden");
-        self.replan_if_due(&mut mission).await;
+        self.planner.after_change(&handle, &mut mission).await;
         Ok(region)
     }
 
@@ -575,7 +615,7 @@ impl Executive {
         let changes = mission.prepare_allow(region, &note, Timestamp::now())?;
         self.commit(&mut mission, changes).await?;
         tracing::info!(mission = mission_id, region, actor = %note.actor, "region allowed");
-        self.replan_if_due(&mut mission).await;
+        self.planner.after_change(&handle, &mut mission).await;
         Ok(Self::summary(&mission))
     }
 
@@ -605,10 +645,13 @@ impl Executive {
         let mut failed = None;
         for handle in handles {
             let mut mission = handle.lock().await;
-            if mission.replan_failed() {
-                // A replanning that could not be committed is tried again
-                // here, so that it does not wait for the next request.
-                self.replan_if_due(&mut mission).await;
+            // A replanning that could not be committed is tried again here,
+            // so that it does not wait for the next request; missions
+            // planned off the request path also get their time triggers
+            // here. Lockstep missions plan only when a request or the
+            // sweep changed something: a simulation stays reproducible.
+            if mission.replan_failed() || !mission.record().spec.lockstep {
+                self.planner.after_change(&handle, &mut mission).await;
             }
             let Some(changes) = mission.prepare_sweep(self.settings.clock.now(), Timestamp::now()) else {
                 continue;
@@ -623,11 +666,45 @@ impl Executive {
                     cause = %change.transition.cause, "task ended by the executive");
             }
             mission.apply(changes);
-            self.replan_if_due(&mut mission).await;
+            self.planner.after_change(&handle, &mut mission).await;
         }
         match failed {
             Some(e) => Err(e.into()),
             None => Ok(()),
+        }
+    }
+
+    /// Stops the planners (plans being committed finish first).
+    pub async fn close(&self) {
+        self.planner.shutdown().await;
+    }
+
+    /// The executive's metrics, with the gauges read from its missions now.
+    pub async fn metrics(&self) -> String {
+        self.refresh_gauges().await;
+        self.metrics.encode()
+    }
+
+    async fn refresh_gauges(&self) {
+        use crate::metrics::{Label, MissionLabel};
+        let handles: Vec<_> = self.missions.read().unwrap_or_else(|e| e.into_inner()).values().cloned().collect();
+        self.metrics.missions.clear();
+        self.metrics.robots.clear();
+        self.metrics.frontier_cells.clear();
+        self.metrics.coverage.clear();
+        for handle in handles {
+            let mission = handle.lock().await;
+            let record = mission.record();
+            let state = if record.paused { "paused" } else { record.state.as_str() };
+            self.metrics.missions.get_or_create(&Label { name: state.to_owned() }).inc();
+            for robot in mission.robots() {
+                let state = if robot.lost { "lost" } else { robot.state.as_str() };
+                self.metrics.robots.get_or_create(&Label { name: state.to_owned() }).inc();
+            }
+            let key = MissionLabel { mission: record.id };
+            self.metrics.frontier_cells.get_or_create(&key).set(mission.frontier_cells() as i64);
+            let share = mission.known_cells() as f64 / record.spec.frame.len().max(1) as f64;
+            self.metrics.coverage.get_or_create(&key).set(share);
         }
     }
 
@@ -636,44 +713,6 @@ impl Executive {
     async fn commit(&self, mission: &mut Mission, changes: Changeset) -> Result<(), Error> {
         self.store.commit(&changes).await?;
         mission.apply(changes);
-        Ok(())
-    }
-
-    /// Replans the mission if a trigger fired, and commits the outcome. The
-    /// request that fired the trigger is already durable and is answered as
-    /// such: a replanning that cannot be committed (a full disk) is logged
-    /// and stays due, to be tried again at the next trigger or sweep.
-    async fn replan_if_due(&self, mission: &mut Mission) {
-        if let Err(e) = self.try_replan(mission).await {
-            tracing::error!(mission = mission.record().id, error = %e, "replanning failed; it stays due");
-            mission.note_replan_failed();
-        }
-    }
-
-    async fn try_replan(&self, mission: &mut Mission) -> Result<(), Error> {
-        let now = self.settings.clock.now();
-        let Some(reason) = mission.replan_reason(now) else {
-            return Ok(());
-        };
-        let job = mission.planning_job(self.settings.planner_threads);
-        let started = std::time::Instant::now();
-        let outcome = tokio::task::spawn_blocking(move || job.run())
-            .await
-            .map_err(|e| Error::Internal(format!("planner task failed: {e}")))?;
-        let planning_ms = started.elapsed().as_secs_f64() * 1e3;
-        let changes = mission.prepare_plan(&outcome, &reason, Timestamp::now(), &self.next_task_id);
-        self.store.commit(&changes).await?;
-        let reassigned = changes.new_tasks.len();
-        mission.apply(changes);
-        mission.mark_replanned(now);
-        tracing::debug!(
-            mission = mission.record().id,
-            %reason,
-            planning_ms,
-            reassigned,
-            replans = mission.record().replans,
-            "replanned"
-        );
         Ok(())
     }
 }

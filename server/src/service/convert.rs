@@ -177,6 +177,7 @@ impl TryFrom<pb::CreateMissionRequest> for MissionSpec {
             policy: policy(r.policy)?,
             replan: replan(r.replan)?,
             scoped_by_communication: r.scoped_by_communication,
+            lockstep: r.lockstep,
         })
     }
 }
@@ -311,6 +312,7 @@ impl From<&MissionSummary> for pb::Mission {
             replans: r.replans,
             map_updates: r.map_updates,
             scoped_by_communication: r.spec.scoped_by_communication,
+            lockstep: r.spec.lockstep,
             lifecycle: Some((&r.spec.lifecycle).into()),
             forbidden_regions: m.forbidden.iter().map(region).collect(),
             leftovers: r.leftovers.iter().map(leftover).collect(),

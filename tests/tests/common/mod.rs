@@ -18,6 +18,8 @@ use exploration_proto::v1::missions_client::MissionsClient;
 pub struct TestExecutive {
     pub address: SocketAddr,
     pub url: String,
+    /// The HTTP listener's address, when it serves HTTP.
+    pub http: Option<SocketAddr>,
     pub db: PathBuf,
     stop: CancellationToken,
     task: tokio::task::JoinHandle<Result<(), coordinator::ServeError>>,
@@ -31,14 +33,27 @@ impl TestExecutive {
 
     /// Serves on 127.0.0.1:0 with `config`.
     pub async fn start_with(config: coordinator::Config) -> Self {
+        Self::start_listening(config, None).await
+    }
+
+    /// Serves gRPC and HTTP (`/metrics`) on ports of 127.0.0.1; the HTTP
+    /// address is in `http`.
+    pub async fn start_with_http(config: coordinator::Config) -> Self {
+        let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        Self::start_listening(config, Some(http)).await
+    }
+
+    async fn start_listening(config: coordinator::Config, http: Option<tokio::net::TcpListener>) -> Self {
+        let http_address = http.as_ref().map(|l| l.local_addr().unwrap());
         let db = config.db_path.clone();
         // A TLS executive is probed by its test, which holds the CA.
         let probe = config.tls.is_none();
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let address = listener.local_addr().unwrap();
         let stop = CancellationToken::new();
-        let task = tokio::spawn(coordinator::run(listener, stop.clone().cancelled_owned(), config));
-        let mut exec = Self { address, url: format!("http://{address}"), db, stop, task };
+        let listeners = coordinator::Listeners { grpc: listener, http };
+        let task = tokio::spawn(coordinator::run_with(listeners, stop.clone().cancelled_owned(), config));
+        let mut exec = Self { address, url: format!("http://{address}"), http: http_address, db, stop, task };
         if probe {
             exec.until_serving().await;
         }
@@ -146,6 +161,9 @@ pub async fn create_mission(
             policy: Some(pb::PolicySpec { name: policy.into(), params: Default::default() }),
             replan: None,
             scoped_by_communication: false,
+            // Each request is answered after the plan it makes due, so that
+            // tests read it at once; tests/planner.rs covers the other mode.
+            lockstep: true,
             ..Default::default()
         })
         .await
@@ -335,4 +353,17 @@ pub fn spawn_coordinator(port: u16, db: &Path, log: &str) -> std::process::Child
         .stderr(std::process::Stdio::inherit())
         .spawn()
         .expect("coordinator starts")
+}
+
+/// GET `path` from an HTTP/1.1 server; the body.
+pub async fn http_get(address: SocketAddr, path: &str) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut stream = tokio::net::TcpStream::connect(address).await.unwrap();
+    let request = format!("GET {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\n\r\n");
+    stream.write_all(request.as_bytes()).await.unwrap();
+    let mut response = String::new();
+    stream.read_to_string(&mut response).await.unwrap();
+    let (head, body) = response.split_once("\r\n\r\n").expect("an HTTP response");
+    assert!(head.starts_with("HTTP/1.1 200"), "{head}");
+    body.to_owned()
 }

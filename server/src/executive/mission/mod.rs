@@ -15,7 +15,7 @@ mod lifecycle;
 mod operator;
 mod planning;
 
-pub(crate) use planning::JobOutcome;
+pub(crate) use planning::{JobOutcome, PlanBasis};
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
@@ -102,6 +102,10 @@ pub(crate) struct Mission {
     layer_changes: usize,
     /// Why the next operation must replan, when an event asked for it.
     pending_replan: Option<String>,
+    /// Counts the events that demand a new plan (robots joining or leaving
+    /// the pool, tasks ending, policy, regions, pausing): a plan made before
+    /// the latest one no longer fits.
+    epoch: u64,
     /// Tasks whose target was found explored at a replanning (not to trigger again).
     explored_tasks: std::collections::HashSet<TaskId>,
     /// Regions where no target is assigned.
@@ -140,6 +144,7 @@ impl Mission {
             frontier_churn: 0,
             layer_changes: 0,
             pending_replan: Some("executive restarted".to_owned()),
+            epoch: 0,
             explored_tasks: std::collections::HashSet::new(),
             forbidden,
             replan_failed: false,
@@ -221,7 +226,7 @@ impl Mission {
                 home_failed: false,
             },
         );
-        self.pending_replan = Some("robot joined".to_owned());
+        self.demand_replan("robot joined".to_owned());
         self.changed.send_modify(|v| *v += 1);
     }
 
@@ -336,7 +341,7 @@ impl Mission {
         }
         self.bids.insert(robot, converted);
         if self.policy.name() == "simmons" {
-            self.pending_replan = Some(format!("robot {robot} submitted bids"));
+            self.demand_replan(format!("robot {robot} submitted bids"));
         }
     }
 
@@ -535,7 +540,7 @@ impl Mission {
                 }
                 // Its robot is free: the others' plan may change too.
                 if change.state != TaskState::Preempted {
-                    self.pending_replan = Some(format!("task {}: {}", task.id, change.transition.cause));
+                    self.demand_replan(format!("task {}: {}", task.id, change.transition.cause));
                 }
             } else if let Some(task) = self.open_tasks.get_mut(&change.task_id) {
                 task.state = change.state;
@@ -545,7 +550,7 @@ impl Mission {
         if let Some((_, policy)) = changes.policy {
             self.policy = Arc::from(policy.build());
             self.record.spec.policy = policy;
-            self.pending_replan = Some("policy changed".to_owned());
+            self.demand_replan("policy changed".to_owned());
         }
         if let Some(counters) = changes.mission {
             if counters.state == MissionState::Active && self.record.state == MissionState::Completed {
@@ -554,7 +559,10 @@ impl Mission {
                 }
             }
             if !counters.paused && self.record.paused {
-                self.pending_replan = Some("mission resumed".to_owned());
+                self.demand_replan("mission resumed".to_owned());
+            } else if counters.paused && !self.record.paused {
+                // A plan made before the pause must not be committed after it.
+                self.epoch += 1;
             }
             self.record.state = counters.state;
             self.record.replans = counters.replans;
@@ -566,10 +574,14 @@ impl Mission {
             let Some(slot) = self.robots.get_mut(&robot.id) else {
                 continue;
             };
-            if slot.record.lost && !robot.lost {
-                self.pending_replan = Some(format!("robot {} reported again", robot.id));
-            }
+            let (was_lost, is_lost, id) = (slot.record.lost, robot.lost, robot.id);
             slot.record = robot;
+            if was_lost && !is_lost {
+                self.demand_replan(format!("robot {id} reported again"));
+            } else if is_lost && !was_lost {
+                // It left the pool: a plan made with it no longer fits.
+                self.epoch += 1;
+            }
         }
         for entry in changes.blacklisted {
             self.add_blacklisted(entry);
@@ -582,7 +594,7 @@ impl Mission {
         if !changes.forbidden.is_empty() || !changes.allowed.is_empty() {
             self.forbidden.retain(|r| !changes.allowed.contains(&r.id));
             self.forbidden.extend(changes.forbidden);
-            self.pending_replan = Some("forbidden regions changed".to_owned());
+            self.demand_replan("forbidden regions changed".to_owned());
         }
         self.changed.send_modify(|v| *v += 1);
         // Push every assignment whose version moved (after all records are in place).

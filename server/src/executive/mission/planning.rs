@@ -43,6 +43,8 @@ pub(crate) struct PlanningJob {
 /// What a planning job produced.
 #[derive(Debug)]
 pub(crate) struct JobOutcome {
+    /// The robots planned for, in the order of `plan.targets`.
+    order: Vec<RobotId>,
     /// Targets of the robots in the pool.
     pub(crate) plan: Plan,
     /// For robots exploring an operator's region: the region's next frontier,
@@ -150,6 +152,7 @@ impl PlanningJob {
         }
         let undecided = self.order.is_empty() && !explored;
         JobOutcome {
+            order: self.order,
             plan: Plan { targets, segmentation },
             region_targets,
             complete,
@@ -158,6 +161,14 @@ impl PlanningJob {
             expired: self.expired,
         }
     }
+}
+
+/// The state a plan was made on (see [`Mission::plan_still_fits`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct PlanBasis {
+    epoch: u64,
+    frontier_churn: usize,
+    layer_changes: usize,
 }
 
 impl Mission {
@@ -356,7 +367,7 @@ impl Mission {
         let Some(slot) = self.robots.get_mut(&robot).filter(|s| s.peers != peers) else { return };
         slot.peers = peers;
         if self.record.spec.scoped_by_communication {
-            self.pending_replan = Some(format!("robot {robot}'s sub-team changed"));
+            self.demand_replan(format!("robot {robot}'s sub-team changed"));
         }
     }
 
@@ -373,8 +384,12 @@ impl Mission {
         let completed = outcome.complete;
         let mut changes = Changeset { at: Some(now), ..Changeset::default() };
         let policy = self.record.spec.policy.name();
-        let pool = self.robots.values().filter(|s| self.in_pool(&s.record));
-        for (slot, target) in pool.zip(&outcome.plan.targets) {
+        // By identity: the plan was made on a snapshot of the pool.
+        let planned = outcome.order.iter().zip(&outcome.plan.targets);
+        let pool = planned.filter_map(|(id, target)| {
+            self.robots.get(id).filter(|s| self.in_pool(&s.record)).map(|slot| (slot, target))
+        });
+        for (slot, target) in pool {
             let robot = &slot.record;
             let current = robot.current_task.and_then(|t| self.open_tasks.get(&t));
             let wanted = if completed {
@@ -477,7 +492,7 @@ impl Mission {
     }
 
     /// Resets the replanning triggers after a committed replanning.
-    pub(crate) fn mark_replanned(&mut self, now: Instant) {
+    pub(crate) fn mark_replanned(&mut self, now: Instant, basis: &PlanBasis) {
         self.replan_failed = false;
         let frame = self.record.spec.frame;
         let explored: Vec<TaskId> = self
@@ -489,8 +504,190 @@ impl Mission {
         self.explored_tasks = explored.into_iter().collect();
         self.last_replan = now;
         self.frontier_at_replan = self.frontier.len();
-        self.frontier_churn = 0;
-        self.layer_changes = 0;
+        // What changed while the plan was made still counts towards the next.
+        self.frontier_churn = self.frontier_churn.saturating_sub(basis.frontier_churn);
+        self.layer_changes = self.layer_changes.saturating_sub(basis.layer_changes);
         self.pending_replan = None;
+    }
+
+    /// What a plan is made on, to tell at commit whether it still fits.
+    pub(crate) fn plan_basis(&self) -> PlanBasis {
+        PlanBasis { epoch: self.epoch, frontier_churn: self.frontier_churn, layer_changes: self.layer_changes }
+    }
+
+    /// Whether a plan made on `basis` may still be committed: nothing that
+    /// demands a new plan happened since (map updates and moves alone do
+    /// not; they count towards the next replanning).
+    pub(crate) fn plan_still_fits(&self, basis: &PlanBasis) -> bool {
+        self.epoch == basis.epoch && !self.record.paused
+    }
+
+    /// Asks for a replanning at the next opportunity, and makes any plan in
+    /// the making stale.
+    pub(super) fn demand_replan(&mut self, reason: String) {
+        self.pending_replan = Some(reason);
+        self.epoch += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::AtomicU64;
+
+    use exploration::fusion::Patch;
+    use exploration::grid::{CellRect, GridFrame};
+    use exploration::math::Point2;
+    use exploration::policy::{Capabilities, PolicyConfig};
+
+    use super::*;
+    use crate::domain::{LifecycleSettings, MissionRecord, MissionSpec, Pose, ReplanSettings, RobotRecord, RobotState};
+    use crate::store::{Changeset, LoggedPatch};
+
+    /// A 4 m × 2 m mission of 0.1 m cells under `nearest`, with two robots,
+    /// the left half of the map known and free.
+    fn mission() -> Mission {
+        let record = MissionRecord {
+            id: 1,
+            spec: MissionSpec {
+                name: "unit".into(),
+                frame: GridFrame::new(0.1, Point2::origin(), 40, 20),
+                policy: PolicyConfig::default_for("nearest").unwrap(),
+                replan: ReplanSettings::default(),
+                scoped_by_communication: false,
+                lockstep: false,
+                lifecycle: LifecycleSettings::default(),
+            },
+            state: MissionState::Active,
+            replans: 0,
+            map_updates: 0,
+            paused: false,
+            leftovers: Vec::new(),
+            created_at: Timestamp(0),
+        };
+        let now = Instant::now();
+        let mut mission = Mission::new(record, now);
+        // Far apart, so that their nearest frontier cells differ.
+        for (id, x, y) in [(1, 0.5, 0.15), (2, 1.5, 1.85)] {
+            mission.insert_robot(robot(id, x, y), now);
+        }
+        let known = Patch::from_probabilities(CellRect::new(0, 0, 20, 20), &[0.1; 400], &[]).unwrap();
+        mission.apply(Changeset {
+            patches: vec![LoggedPatch { robot_id: 1, seq: 1, patch: known }],
+            ..Changeset::default()
+        });
+        mission
+    }
+
+    fn robot(id: RobotId, x: f64, y: f64) -> RobotRecord {
+        RobotRecord {
+            id,
+            mission_id: 1,
+            name: format!("r{id}"),
+            capabilities: Capabilities {
+                sensor_range_m: 1.0,
+                field_of_view_rad: std::f64::consts::TAU,
+                speed_mps: 0.5,
+                footprint_radius_m: 0.0,
+            },
+            state: RobotState::Idle,
+            pose: Pose { position: Point2::new(x, y), heading: 0.0 },
+            last_map_seq: 0,
+            distance_m: 0.0,
+            assignment_version: 0,
+            assigned_distance_m: 0.0,
+            current_task: None,
+            last_seen: Timestamp(0),
+            lost: false,
+            home: Point2::new(x, y),
+        }
+    }
+
+    /// Plans `mission` as the planner does: snapshot, run, prepare, apply.
+    fn plan(mission: &mut Mission, ids: &AtomicU64) -> Changeset {
+        let basis = mission.plan_basis();
+        let reason = mission.replan_reason(Instant::now()).expect("a plan is due");
+        let outcome = mission.planning_job(1).run();
+        let changes = mission.prepare_plan(&outcome, &reason, Timestamp(1), ids);
+        mission.apply(changes.clone());
+        mission.mark_replanned(Instant::now(), &basis);
+        changes
+    }
+
+    #[test]
+    fn a_plan_gives_each_robot_in_the_pool_a_frontier_task() {
+        let mut mission = mission();
+        let ids = AtomicU64::new(10);
+        let changes = plan(&mut mission, &ids);
+        assert_eq!(changes.new_tasks.len(), 2, "both robots get a task");
+        assert_eq!(changes.new_tasks.iter().map(|t| t.id).collect::<Vec<_>>(), vec![11, 12]);
+        for task in &changes.new_tasks {
+            let cell = mission.record().spec.frame.cell_from_world(&task.target).unwrap();
+            assert!(mission.frontier().contains(cell), "{task:?} targets the frontier");
+        }
+        assert_eq!(mission.record().replans, 1);
+        assert!(mission.replan_reason(Instant::now()).is_none(), "nothing is due right after a plan");
+    }
+
+    #[test]
+    fn a_plan_made_before_a_task_ended_no_longer_fits() {
+        let mut mission = mission();
+        let ids = AtomicU64::new(0);
+        plan(&mut mission, &ids);
+        let basis = mission.plan_basis();
+        // Map news alone: the plan still fits (it counts towards the next one).
+        let more = Patch::from_probabilities(CellRect::new(20, 0, 2, 20), &[0.1; 40], &[]).unwrap();
+        mission.apply(Changeset {
+            patches: vec![LoggedPatch { robot_id: 2, seq: 1, patch: more }],
+            ..Changeset::default()
+        });
+        assert!(mission.plan_still_fits(&basis));
+        // A task ends (the robot arrived): a new plan is needed; the old no longer fits.
+        let task = mission.open_tasks.values().next().unwrap().clone();
+        mission.apply(Changeset {
+            task_changes: vec![transition(&task, TaskState::Reached, "robot arrived", Actor::Robot, Timestamp(2))],
+            ..Changeset::default()
+        });
+        assert!(!mission.plan_still_fits(&basis));
+        assert!(mission.replan_reason(Instant::now()).is_some_and(|r| r.contains("robot arrived")));
+    }
+
+    #[test]
+    fn changes_made_while_a_plan_is_made_still_count_after_it() {
+        let mut mission = mission();
+        let ids = AtomicU64::new(0);
+        plan(&mut mission, &ids);
+        let basis = mission.plan_basis();
+        let outcome = mission.planning_job(1).run();
+        // While that plan was made, the rest of the map became known: churn
+        // that must still trigger the next plan after this one is committed.
+        let rest = Patch::from_probabilities(CellRect::new(20, 0, 20, 20), &[0.1; 400], &[]).unwrap();
+        mission.apply(Changeset {
+            patches: vec![LoggedPatch { robot_id: 2, seq: 1, patch: rest }],
+            ..Changeset::default()
+        });
+        assert!(mission.plan_still_fits(&basis));
+        let changes = mission.prepare_plan(&outcome, "test", Timestamp(3), &ids);
+        mission.apply(changes);
+        mission.mark_replanned(Instant::now(), &basis);
+        assert!(mission.replan_reason(Instant::now()).is_some(), "the churn after the snapshot is kept");
+    }
+
+    #[test]
+    fn a_plan_is_matched_to_robots_by_identity() {
+        let mut mission = mission();
+        let ids = AtomicU64::new(0);
+        let outcome = mission.planning_job(1).run();
+        // Robot 1 leaves the pool (its lease ran out) after the snapshot.
+        let mut lost = mission.robot(1).unwrap().clone();
+        lost.lost = true;
+        mission.apply(Changeset { robots: vec![lost], ..Changeset::default() });
+        let changes = mission.prepare_plan(&outcome, "test", Timestamp(4), &ids);
+        let planned_for_2 = outcome.plan.targets[1].as_ref().unwrap().cell;
+        assert_ne!(Some(planned_for_2), outcome.plan.targets[0].as_ref().map(|t| t.cell), "distinct targets");
+        assert_eq!(changes.new_tasks.len(), 1, "no task for the robot that left: {changes:?}");
+        let task = &changes.new_tasks[0];
+        assert_eq!(task.robot_id, 2);
+        let frame = mission.record().spec.frame;
+        assert_eq!(frame.cell_from_world(&task.target), Some(planned_for_2), "robot 2's own target");
     }
 }

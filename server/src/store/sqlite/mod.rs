@@ -136,8 +136,9 @@ impl Store for SqliteStore {
             "INSERT INTO missions (name, resolution, origin_x, origin_y, width, height, policy, policy_params,
                                    replan_distance_m, replan_interval_s, replan_frontier_change, state,
                                    created_at, updated_at, scoped_by_communication, lease_s, stall_s,
-                                   rendezvous_x, rendezvous_y)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, 'active', ?12, ?12, ?13, ?14, ?15, ?16, ?17)
+                                   rendezvous_x, rendezvous_y, lockstep)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, 'active', ?12, ?12, ?13, ?14, ?15, ?16, ?17,
+                     ?18)
              RETURNING *",
         )
         .bind(&spec.name)
@@ -157,6 +158,7 @@ impl Store for SqliteStore {
         .bind(spec.lifecycle.stall.as_secs_f64())
         .bind(spec.lifecycle.rendezvous.map(|p| p.x))
         .bind(spec.lifecycle.rendezvous.map(|p| p.y))
+        .bind(i64::from(spec.lockstep))
         .fetch_one(&self.pool)
         .await?;
         rows::mission_from_row(&row)

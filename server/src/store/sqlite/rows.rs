@@ -194,6 +194,7 @@ pub(super) fn mission_from_row(row: &SqliteRow) -> Result<MissionRecord, StoreEr
                 frontier_change: at.in_range(row, "replan_frontier_change", 0.0, 1.0)?,
             },
             scoped_by_communication: at.flag(row, "scoped_by_communication")?,
+            lockstep: at.flag(row, "lockstep")?,
             lifecycle: LifecycleSettings {
                 lease: seconds("lease_s", validate::LIFECYCLE_S)?,
                 stall: seconds("stall_s", validate::LIFECYCLE_S)?,

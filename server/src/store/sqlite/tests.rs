@@ -22,6 +22,7 @@ fn spec() -> MissionSpec {
         policy: PolicyConfig::default_for("burgard").unwrap(),
         replan: ReplanSettings::default(),
         scoped_by_communication: true,
+        lockstep: true,
         lifecycle: LifecycleSettings {
             lease: Duration::from_secs(7),
             stall: Duration::from_secs(11),

@@ -1,0 +1,235 @@
+//! The planner: where and when plans are made.
+//!
+//! A map update, a heartbeat or bids are committed, applied and answered at
+//! once, at a cost that grows with the request, not the map. When they make
+//! a replanning due, the mission's planner task is woken. It coalesces
+//! wake-ups (every trigger that arrives while a plan is made is served by
+//! the next one), takes a snapshot under the mission's lock, makes the plan
+//! off the lock on the blocking pool (missions in parallel, up to the
+//! planner thread budget), and commits it only while it still fits the
+//! mission: if something that demands a new plan happened meanwhile (a task
+//! ended, a robot joined or left, the policy changed), it plans again.
+//!
+//! A mission in lockstep (simulations) is planned inside the request that
+//! made the plan due, under the mission's lock, so that the same requests in
+//! the same order give the same plans.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+
+use tokio::sync::{Mutex, MutexGuard, Notify, Semaphore};
+use tokio::task::JoinSet;
+use tokio_util::sync::CancellationToken;
+
+use super::mission::Mission;
+use crate::clock::Clock;
+use crate::domain::Timestamp;
+use crate::error::Error;
+use crate::metrics::Metrics;
+use crate::store::Store;
+
+/// How many times a plan that no longer fits is made again before the
+/// planner waits for the next trigger (a mission whose team changes faster
+/// than it can be planned is planned at the rate it can be).
+const ATTEMPTS: usize = 3;
+
+/// One mission as the executive holds it: its state behind a lock, and the
+/// wake-up of its planner.
+#[derive(Debug)]
+pub(crate) struct MissionCell {
+    state: Mutex<Mission>,
+    wake: Notify,
+    /// Requests waiting for the lock, to bound the work queued per mission.
+    queued: AtomicUsize,
+}
+
+impl MissionCell {
+    pub(crate) fn new(mission: Mission) -> Self {
+        Self { state: Mutex::new(mission), wake: Notify::new(), queued: AtomicUsize::new(0) }
+    }
+
+    /// The mission, for reading or for work that is not a robot's request.
+    pub(crate) async fn lock(&self) -> MutexGuard<'_, Mission> {
+        self.state.lock().await
+    }
+
+    /// The mission, for a request, unless `limit` requests already wait for
+    /// it: then the request is refused at once instead of queueing without
+    /// bound.
+    pub(crate) async fn lock_for_request(&self, limit: usize) -> Result<MutexGuard<'_, Mission>, Error> {
+        let waiting = self.queued.fetch_add(1, Ordering::AcqRel);
+        if waiting >= limit {
+            self.queued.fetch_sub(1, Ordering::AcqRel);
+            return Err(Error::Overloaded(format!(
+                "{waiting} requests already wait for this mission; retry after a short pause"
+            )));
+        }
+        let guard = self.state.lock().await;
+        self.queued.fetch_sub(1, Ordering::AcqRel);
+        Ok(guard)
+    }
+}
+
+/// Makes the plans of every mission.
+#[derive(Debug)]
+pub(crate) struct Planner {
+    store: Arc<dyn Store>,
+    clock: Clock,
+    /// Threads one plan may use.
+    threads: usize,
+    /// One permit per plan made at once.
+    permits: Semaphore,
+    /// Plans being made now.
+    running: AtomicUsize,
+    task_ids: Arc<AtomicU64>,
+    metrics: Arc<Metrics>,
+    stop: CancellationToken,
+    tasks: std::sync::Mutex<JoinSet<()>>,
+}
+
+impl Planner {
+    pub(crate) fn new(
+        store: Arc<dyn Store>,
+        clock: Clock,
+        threads: usize,
+        task_ids: Arc<AtomicU64>,
+        metrics: Arc<Metrics>,
+    ) -> Arc<Self> {
+        Arc::new(Self {
+            store,
+            clock,
+            threads: threads.max(1),
+            permits: Semaphore::new(threads.max(1)),
+            running: AtomicUsize::new(0),
+            task_ids,
+            metrics,
+            stop: CancellationToken::new(),
+            tasks: std::sync::Mutex::new(JoinSet::new()),
+        })
+    }
+
+    /// Starts the planner task of a mission; it plans whenever woken.
+    pub(crate) fn start(self: &Arc<Self>, cell: Arc<MissionCell>) {
+        let planner = Arc::clone(self);
+        let mut tasks = self.tasks.lock().unwrap_or_else(|e| e.into_inner());
+        tasks.spawn(async move {
+            loop {
+                tokio::select! {
+                    () = planner.stop.cancelled() => return,
+                    () = cell.wake.notified() => {}
+                }
+                planner.plan_off_path(&cell).await;
+            }
+        });
+    }
+
+    /// Stops every planner task and waits for them (plans being committed
+    /// finish first).
+    pub(crate) async fn shutdown(&self) {
+        self.stop.cancel();
+        let mut tasks = std::mem::take(&mut *self.tasks.lock().unwrap_or_else(|e| e.into_inner()));
+        while let Some(done) = tasks.join_next().await {
+            if let Err(e) = done
+                && e.is_panic()
+            {
+                tracing::error!(error = %e, "a planner task panicked");
+            }
+        }
+    }
+
+    /// After a change was applied to `mission`: plans now when it is in
+    /// lockstep, otherwise wakes its planner if a plan is due.
+    pub(crate) async fn after_change(&self, cell: &MissionCell, mission: &mut Mission) {
+        if mission.record().spec.lockstep {
+            self.plan_inline(mission).await;
+        } else if mission.replan_failed() || mission.replan_reason(self.clock.now()).is_some() {
+            self.metrics.planner_triggers.inc();
+            cell.wake.notify_one();
+        }
+    }
+
+    /// Plans `mission` now, under its lock. A plan that cannot be committed
+    /// (a full disk) is logged and stays due.
+    pub(crate) async fn plan_inline(&self, mission: &mut Mission) {
+        if let Err(e) = self.plan_locked(mission).await {
+            tracing::error!(mission = mission.record().id, error = %e, "replanning failed; it stays due");
+            mission.note_replan_failed();
+        }
+    }
+
+    async fn plan_locked(&self, mission: &mut Mission) -> Result<(), Error> {
+        let now = self.clock.now();
+        let Some(reason) = mission.replan_reason(now) else {
+            return Ok(());
+        };
+        let basis = mission.plan_basis();
+        let job = mission.planning_job(self.threads);
+        let started = std::time::Instant::now();
+        let outcome = tokio::task::spawn_blocking(move || job.run())
+            .await
+            .map_err(|e| Error::Internal(format!("planner task failed: {e}")))?;
+        self.metrics.observe_plan(mission.record().spec.policy.name(), started.elapsed());
+        self.commit_plan(mission, &outcome, &reason, now, &basis).await
+    }
+
+    async fn commit_plan(
+        &self,
+        mission: &mut Mission,
+        outcome: &super::mission::JobOutcome,
+        reason: &str,
+        now: tokio::time::Instant,
+        basis: &super::mission::PlanBasis,
+    ) -> Result<(), Error> {
+        let changes = mission.prepare_plan(outcome, reason, Timestamp::now(), &self.task_ids);
+        let started = std::time::Instant::now();
+        self.store.commit(&changes).await?;
+        self.metrics.store_commit.observe(started.elapsed().as_secs_f64());
+        let reassigned = changes.new_tasks.len();
+        mission.apply(changes);
+        mission.mark_replanned(now, basis);
+        tracing::debug!(mission = mission.record().id, %reason, reassigned, replans = mission.record().replans, "replanned");
+        Ok(())
+    }
+
+    /// Plans a mission off the request path (see the module).
+    async fn plan_off_path(&self, cell: &MissionCell) {
+        for _ in 0..ATTEMPTS {
+            let (job, basis, reason, now, policy) = {
+                let mission = cell.lock().await;
+                let now = self.clock.now();
+                let Some(reason) = mission.replan_reason(now) else { return };
+                let threads = if self.running.load(Ordering::Acquire) > 0 { 1 } else { self.threads };
+                let policy = mission.record().spec.policy.name();
+                (mission.planning_job(threads), mission.plan_basis(), reason, now, policy)
+            };
+            let Ok(_permit) = self.permits.acquire().await else { return };
+            self.running.fetch_add(1, Ordering::AcqRel);
+            let started = std::time::Instant::now();
+            let outcome = tokio::task::spawn_blocking(move || job.run()).await;
+            self.running.fetch_sub(1, Ordering::AcqRel);
+            self.metrics.observe_plan(policy, started.elapsed());
+            let outcome = match outcome {
+                Ok(outcome) => outcome,
+                Err(e) => {
+                    tracing::error!(error = %e, "a planning job failed");
+                    cell.lock().await.note_replan_failed();
+                    return;
+                }
+            };
+            let mut mission = cell.lock().await;
+            if !mission.plan_still_fits(&basis) {
+                self.metrics.stale_plans.inc();
+                continue;
+            }
+            if let Err(e) = self.commit_plan(&mut mission, &outcome, &reason, now, &basis).await {
+                tracing::error!(mission = mission.record().id, error = %e, "replanning failed; it stays due");
+                mission.note_replan_failed();
+                return;
+            }
+            // Triggers that arrived meanwhile are served by the next round.
+            if mission.replan_reason(self.clock.now()).is_none() {
+                return;
+            }
+        }
+    }
+}

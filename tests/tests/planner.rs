@@ -1,0 +1,78 @@
+//! Missions planned off the request path: requests are acknowledged as soon
+//! as they are durable, the planner assigns targets in the background and
+//! pushes them on the robots' streams; the metrics show it working.
+
+mod common;
+
+use common::{TestExecutive, patch, register, update};
+use exploration_proto::v1 as pb;
+
+/// The value of a metric line starting with `prefix` (0 when absent).
+fn metric(text: &str, prefix: &str) -> f64 {
+    text.lines().filter(|l| l.starts_with(prefix)).filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok()).sum()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn plans_arrive_on_the_streams_and_the_metrics_move() {
+    let dir = tempfile::tempdir().unwrap();
+    let exec = TestExecutive::start_with_http(coordinator::Config::new(dir.path().join("async.db"))).await;
+    let http = exec.http.unwrap();
+    let before = common::http_get(http, "/metrics").await;
+    assert_eq!(metric(&before, "coordinator_plan_seconds_count"), 0.0);
+
+    let mut missions = exec.missions();
+    let mission = missions
+        .create_mission(pb::CreateMissionRequest {
+            name: "async".into(),
+            frame: Some(common::frame(60, 30)),
+            policy: Some(pb::PolicySpec { name: "minpos".into(), params: Default::default() }),
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(!mission.lockstep);
+    let mut fleet = exec.fleet();
+    let mut streams = Vec::new();
+    let mut robots = Vec::new();
+    for (i, x) in [0.5, 1.5, 2.5].into_iter().enumerate() {
+        let robot = register(&mut fleet, mission.id, &format!("r{i}"), x, 0.5).await;
+        let stream = fleet.watch_assignment(pb::WatchAssignmentRequest { robot_id: robot.id }).await.unwrap();
+        streams.push(stream.into_inner());
+        robots.push(robot);
+    }
+    // The left half is known: each update is acknowledged as applied.
+    for (i, robot) in robots.iter().enumerate() {
+        let answer = fleet
+            .update_map(update(robot.id, 1, 0.5 + i as f64, 0.5, vec![patch(0, 0, 30, 30, 0.1)]))
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(answer.applied_seq, 1);
+    }
+    // The planner's targets arrive on every stream.
+    for stream in &mut streams {
+        let assigned = async {
+            while let Some(assignment) = stream.message().await.unwrap() {
+                if assignment.task_id != 0 {
+                    return;
+                }
+            }
+            panic!("the stream ended");
+        };
+        // Bounded: a robot the planner never serves fails the test instead of hanging it.
+        tokio::time::timeout(std::time::Duration::from_secs(30), assigned).await.expect("a task within 30 s");
+    }
+    let after = common::http_get(http, "/metrics").await;
+    assert!(metric(&after, "coordinator_plan_seconds_count{name=\"minpos\"}") >= 1.0, "{after}");
+    assert!(metric(&after, "coordinator_planner_triggers_total") >= 1.0);
+    assert_eq!(metric(&after, "coordinator_calls_total{method=\"exploration.v1.Fleet/UpdateMap\",code=\"Ok\"}"), 3.0);
+    assert_eq!(metric(&after, "coordinator_robots{name=\"idle\"}"), 3.0);
+    assert_eq!(metric(&after, "coordinator_missions{name=\"active\"}"), 1.0);
+    let frontier = metric(&after, &format!("coordinator_frontier_cells{{mission=\"{}\"}}", mission.id));
+    assert!(frontier > 0.0, "{after}");
+    let coverage = metric(&after, &format!("coordinator_coverage{{mission=\"{}\"}}", mission.id));
+    assert!((coverage - 0.5).abs() < 1e-9, "{coverage}");
+    assert!(metric(&after, "coordinator_store_commit_seconds_count") >= 1.0);
+    exec.stop().await;
+}
