@@ -337,8 +337,10 @@ pub enum SimError {
 }
 
 /// An executive on loopback, owned by the run; stopped when dropped.
-struct EmbeddedExecutive {
-    url: String,
+pub(crate) struct EmbeddedExecutive {
+    pub(crate) url: String,
+    /// Its operator token.
+    pub(crate) token: String,
     stop: CancellationToken,
     task: Option<tokio::task::JoinHandle<Result<(), coordinator::ServeError>>>,
     _dir: Option<tempfile::TempDir>,
@@ -353,6 +355,26 @@ impl Drop for EmbeddedExecutive {
 
 impl EmbeddedExecutive {
     async fn start(db: Option<PathBuf>, operator_token: String) -> Result<Self, SimError> {
+        // The fleet waits for every acknowledgement: a crash of this process
+        // takes the fleet with it, so power-cut durability buys nothing here.
+        Self::start_with(db, operator_token, coordinator::Durability::Normal).await
+    }
+
+    /// An executive as a deployment runs one (every commit survives a power
+    /// cut), for load tests; with a random operator token unless given one.
+    pub(crate) async fn start_durable(token: Option<String>) -> Result<Self, SimError> {
+        let token = match token {
+            Some(token) => token,
+            None => coordinator::auth::random_operator_token().map_err(|e| SimError::Executive(e.to_string()))?,
+        };
+        Self::start_with(None, token, coordinator::Durability::Full).await
+    }
+
+    async fn start_with(
+        db: Option<PathBuf>,
+        operator_token: String,
+        durability: coordinator::Durability,
+    ) -> Result<Self, SimError> {
         let (path, dir) = match db {
             Some(path) => (path, None),
             None => {
@@ -366,15 +388,13 @@ impl EmbeddedExecutive {
         let stop = CancellationToken::new();
         let shutdown = stop.clone().cancelled_owned();
         let mut config = coordinator::Config::new(path);
-        config.operator_token = Some(operator_token);
-        // The fleet waits for every acknowledgement: a crash of this process
-        // takes the fleet with it, so power-cut durability buys nothing here.
-        config.durability = coordinator::Durability::Normal;
+        config.operator_token = Some(operator_token.clone());
+        config.durability = durability;
         let task = tokio::spawn(coordinator::run(listener, shutdown, config));
-        Ok(Self { url: format!("http://{address}"), stop, task: Some(task), _dir: dir })
+        Ok(Self { url: format!("http://{address}"), token: operator_token, stop, task: Some(task), _dir: dir })
     }
 
-    async fn stop(mut self) -> Result<(), SimError> {
+    pub(crate) async fn stop(mut self) -> Result<(), SimError> {
         self.stop.cancel();
         let Some(task) = self.task.take() else { return Ok(()) };
         match task.await {

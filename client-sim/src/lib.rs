@@ -12,6 +12,7 @@
 pub mod experiment;
 pub mod fleet;
 pub mod generate;
+pub mod load;
 pub mod picture;
 pub mod plots;
 pub mod report;

@@ -33,6 +33,71 @@ enum Command {
     Experiment(ExperimentArgs),
     /// Writes the results report from experiments already run.
     Report(ReportArgs),
+    /// Loads an executive with many missions × many robots at real robots'
+    /// rates, open-loop, and reports throughput, latency, triggers, the
+    /// executive's CPU and memory, and its capacity against an empty call.
+    Load(LoadArgs),
+}
+
+#[derive(Debug, Args)]
+struct LoadArgs {
+    /// Missions at once.
+    #[arg(long, default_value_t = 20)]
+    missions: usize,
+    /// Robots per mission.
+    #[arg(long, default_value_t = 50)]
+    robots: usize,
+    /// Seconds the robots run at their rates.
+    #[arg(long, default_value_t = 60.0)]
+    duration: f64,
+    /// Heartbeats per robot per second.
+    #[arg(long, default_value_t = 2.0)]
+    heartbeat_hz: f64,
+    /// Map updates (the sensor's footprint) per robot per second.
+    #[arg(long, default_value_t = 1.0)]
+    map_hz: f64,
+    /// Multiplies both rates: a sweep of offered load.
+    #[arg(long, default_value_t = 1.0)]
+    rate_scale: f64,
+    /// Robots' speed, metres per second.
+    #[arg(long, default_value_t = 0.5)]
+    speed: f64,
+    /// Sensor range, metres (the patches are its footprint).
+    #[arg(long, default_value_t = 3.0)]
+    sensor_range: f64,
+    /// The map every mission explores (default: the bundled Nav2 warehouse).
+    #[arg(long)]
+    map: Option<PathBuf>,
+    /// Cell size, metres.
+    #[arg(long, default_value_t = 0.15)]
+    cell_size: f64,
+    /// Coordination policy.
+    #[arg(long, default_value = "minpos")]
+    policy: String,
+    /// Seed of every random choice.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Executive to load; without it one is started in this process.
+    #[arg(long)]
+    server: Option<String>,
+    /// Operator token of that executive.
+    #[arg(long, env = "COORDINATOR_OPERATOR_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    #[command(flatten)]
+    tls: TlsArgs,
+    /// The executive's pid, to report its CPU and memory (default: this
+    /// process when the executive is embedded).
+    #[arg(long)]
+    executive_pid: Option<u32>,
+    /// Seconds of the closed-loop capacity phase (0: none).
+    #[arg(long, default_value_t = 10.0)]
+    capacity: f64,
+    /// Concurrent callers in the capacity phase.
+    #[arg(long, default_value_t = 64)]
+    capacity_callers: usize,
+    /// Write the report as JSON to this file as well.
+    #[arg(long)]
+    json: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -267,7 +332,44 @@ async fn main() -> anyhow::Result<()> {
         Command::Run(args) => run(*args).await,
         Command::Experiment(args) => experiment(args).await,
         Command::Report(args) => report(args),
+        Command::Load(args) => load(args).await,
     }
+}
+
+async fn load(args: LoadArgs) -> anyhow::Result<()> {
+    let seconds = |v: f64, flag: &str| {
+        anyhow::ensure!(v.is_finite() && (0.0..=86_400.0).contains(&v), "{flag} must be seconds in [0, 86400]");
+        Ok(Duration::from_secs_f64(v))
+    };
+    anyhow::ensure!(args.rate_scale > 0.0 && args.rate_scale.is_finite(), "--rate-scale must be positive");
+    let map = args.map.unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../maps/nav2_warehouse.yaml"));
+    let config = client_sim::load::LoadConfig {
+        missions: args.missions,
+        robots: args.robots,
+        duration: seconds(args.duration, "--duration")?,
+        heartbeat_hz: args.heartbeat_hz * args.rate_scale,
+        map_hz: args.map_hz * args.rate_scale,
+        speed_mps: args.speed,
+        sensor_range_m: args.sensor_range,
+        world: WorldSpec::Map(map),
+        cell_size: args.cell_size,
+        policy: args.policy,
+        seed: args.seed,
+        executive_pid: args.executive_pid.or(args.server.is_none().then(std::process::id)),
+        server: args.server,
+        token: args.token,
+        tls: args.tls.settings()?,
+        capacity: seconds(args.capacity, "--capacity")?,
+        capacity_callers: args.capacity_callers,
+    };
+    let report = client_sim::load::run(&config).await?;
+    eprint!("{}", report.summary());
+    let json = serde_json::to_string(&report)?;
+    if let Some(path) = args.json {
+        std::fs::write(&path, &json).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    println!("{json}");
+    Ok(())
 }
 
 async fn run(args: RunArgs) -> anyhow::Result<()> {

@@ -204,7 +204,17 @@ pub struct Bidding {
 }
 
 fn retryable(status: &Status) -> bool {
-    matches!(status.code(), Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded)
+    matches!(
+        status.code(),
+        Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded | Code::ResourceExhausted
+    )
+}
+
+/// How long the executive asked to wait before retrying a call it shed
+/// (`grpc-retry-pushback-ms`), if it did.
+fn pushback(status: &Status) -> Option<Duration> {
+    let ms = status.metadata().get("grpc-retry-pushback-ms")?.to_str().ok()?.parse::<u64>().ok()?;
+    Some(Duration::from_millis(ms.min(10_000)))
 }
 
 impl SimRobot {
@@ -753,8 +763,8 @@ where
                 if started.elapsed() >= budget {
                     return Err(RobotError::Unreachable { what, budget, status });
                 }
-                tracing::debug!(what, %status, "executive unreachable; retrying");
-                tokio::time::sleep(backoff).await;
+                tracing::debug!(what, %status, "executive unreachable or busy; retrying");
+                tokio::time::sleep(pushback(&status).unwrap_or(backoff).max(backoff)).await;
                 backoff = (backoff * 2).min(Duration::from_millis(500));
             }
             Err(status) => return Err(RobotError::Rpc { what, status }),

@@ -172,8 +172,8 @@ pub async fn run_with(
     let auth = auth::Authenticator::new(config.operator_token.as_deref(), config.operator_tokens_file.as_deref())?;
     let address = listener.local_addr().ok();
     warn_about_exposure(&auth, address, config.tls.is_some());
-    let store = SqliteStore::open(&config.db_path, config.durability).await?;
     let metrics = Arc::new(metrics::Metrics::new());
+    let store = SqliteStore::open_measured(&config.db_path, config.durability, Some(Arc::clone(&metrics))).await?;
     let executive = match Executive::open(Arc::new(store.clone()), config.executive, Arc::clone(&metrics)).await {
         Ok(executive) => Arc::new(executive),
         Err(e) => {

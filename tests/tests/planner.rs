@@ -76,3 +76,41 @@ async fn plans_arrive_on_the_streams_and_the_metrics_move() {
     assert!(metric(&after, "coordinator_store_commit_seconds_count") >= 1.0);
     exec.stop().await;
 }
+
+/// More robot requests than a mission's queue holds are refused at once with
+/// RESOURCE_EXHAUSTED and a retry hint, counted as shed; when the burst is
+/// over, calls go through again by themselves.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_beyond_a_missions_queue_is_shed_and_the_mission_recovers() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = coordinator::Config::new(dir.path().join("shed.db"));
+    config.executive.max_queued_per_mission = 2;
+    let exec = TestExecutive::start_with_http(config).await;
+    let mut missions = exec.missions();
+    let mission = common::create_mission(&mut missions, 60, 30, "nearest").await;
+    let mut fleet = exec.fleet();
+    let robot = register(&mut fleet, mission.id, "r", 0.5, 0.5).await;
+    let mut burst = tokio::task::JoinSet::new();
+    for seq in 1..=300 {
+        let mut client = exec.fleet();
+        burst.spawn(async move {
+            client.update_map(update(robot.id, seq, 0.5, 0.5, vec![patch(0, 0, 60, 30, 0.1)])).await.map(|_| ())
+        });
+    }
+    let outcomes = burst.join_all().await;
+    let shed: Vec<&tonic::Status> = outcomes
+        .iter()
+        .filter_map(|o| o.as_ref().err())
+        .filter(|s| s.code() == tonic::Code::ResourceExhausted)
+        .collect();
+    assert!(!shed.is_empty(), "a burst of 300 over a queue of 2 sheds some");
+    assert!(shed.iter().all(|s| s.metadata().get("grpc-retry-pushback-ms").is_some()), "with a retry hint");
+    assert!(outcomes.iter().any(Result::is_ok), "and admits others");
+    // After the burst, a call goes through at once.
+    let latest = missions.list_robots(pb::ListRobotsRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    let next = latest.robots[0].last_map_seq + 1;
+    fleet.update_map(update(robot.id, next, 0.5, 0.5, vec![])).await.unwrap();
+    let metrics = common::http_get(exec.http.unwrap(), "/metrics").await;
+    assert!(metric(&metrics, "coordinator_shed_total") >= shed.len() as f64, "{metrics}");
+    exec.stop().await;
+}

@@ -7,7 +7,7 @@
 //! one. C_ij is the path length from robot i to the nearest cell of frontier
 //! (cluster) j, which is also the robot's target.
 
-use super::{ClusterCost, Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
+use super::{Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
 use crate::cost::CostCache;
 
 pub(super) const NAME: &str = "greedy";
@@ -26,7 +26,7 @@ impl Policy for Greedy {
     }
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
-        let matrix: Vec<Vec<Option<ClusterCost>>> = cluster_cost_matrix(input, costs, self.switch_margin);
+        let matrix = cluster_cost_matrix(input, costs, self.switch_margin);
         let m = input.clusters.len();
         let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
         let mut free_frontier = vec![true; m];
@@ -45,7 +45,12 @@ impl Policy for Greedy {
                 .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
             match best {
                 Some((_, i, j, c)) => {
-                    targets[i] = Some(Target { cell: c.cell, utility: -c.cost, path_cost: c.cost, gain_region: None });
+                    targets[i] = matrix.cell(i, j).map(|cell| Target {
+                        cell,
+                        utility: -c.cost,
+                        path_cost: c.cost,
+                        gain_region: None,
+                    });
                     free_frontier[j] = false;
                     if free_frontier.iter().all(|f| !f) {
                         free_frontier.fill(true);

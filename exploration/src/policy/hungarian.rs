@@ -7,7 +7,7 @@
 //! frontiers are offered again to the robots left over (Wurm et al.'s
 //! "duplicating existing targets"); unreachable pairs are forbidden.
 
-use super::{ClusterCost, Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
+use super::{Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
 use crate::assign::assign_with_dummies;
 use crate::cost::CostCache;
 
@@ -27,7 +27,7 @@ impl Policy for Hungarian {
     }
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
-        let matrix: Vec<Vec<Option<ClusterCost>>> = cluster_cost_matrix(input, costs, self.switch_margin);
+        let matrix = cluster_cost_matrix(input, costs, self.switch_margin);
         let m = input.clusters.len();
         let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
         if m == 0 {
@@ -48,8 +48,10 @@ impl Policy for Hungarian {
             let mut progressed = false;
             for (row, col) in solution.row_to_col.iter().enumerate() {
                 let i = waiting[row];
-                if let Some(c) = col.and_then(|j| matrix[i][j]) {
-                    targets[i] = Some(Target { cell: c.cell, utility: -c.cost, path_cost: c.cost, gain_region: None });
+                if let Some((j, c)) = col.and_then(|j| matrix[i][j].map(|c| (j, c)))
+                    && let Some(cell) = matrix.cell(i, j)
+                {
+                    targets[i] = Some(Target { cell, utility: -c.cost, path_cost: c.cost, gain_region: None });
                     progressed = true;
                 }
             }

@@ -11,7 +11,7 @@
 //! large teams. The target is the frontier's cell nearest to the robot,
 //! where descending the frontier's potential field leads.
 
-use super::{ClusterCost, Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
+use super::{Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
 use crate::cost::CostCache;
 
 pub(super) const NAME: &str = "minpos";
@@ -31,7 +31,7 @@ impl Policy for MinPos {
     }
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
-        let matrix: Vec<Vec<Option<ClusterCost>>> = cluster_cost_matrix(input, costs, self.switch_margin);
+        let matrix = cluster_cost_matrix(input, costs, self.switch_margin);
         let n = matrix.len();
         let targets = (0..n)
             .map(|i| {
@@ -46,11 +46,13 @@ impl Policy for MinPos {
                         (position, c.score, j, c)
                     })
                     .min_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)).then(a.2.cmp(&b.2)))
-                    .map(|(position, _, _, c)| Target {
-                        cell: c.cell,
-                        utility: -(position as f64),
-                        path_cost: c.cost,
-                        gain_region: None,
+                    .and_then(|(position, _, j, c)| {
+                        Some(Target {
+                            cell: matrix.cell(i, j)?,
+                            utility: -(position as f64),
+                            path_cost: c.cost,
+                            gain_region: None,
+                        })
                     })
             })
             .collect();

@@ -157,13 +157,50 @@ pub fn robot_cost_maps(
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ClusterCost {
     /// The cell to go to: the cluster's cell cheapest to reach, or the
-    /// robot's current target when it lies in the cluster.
+    /// robot's current target when it lies in the cluster. Read it through
+    /// [`ClusterCosts::cell`]: from a cluster's wavefront it is found only
+    /// for the pairs a policy picks (a descent per pair would cost more
+    /// than the wavefronts).
     pub cell: Cell,
     /// The path cost to that cell.
     pub cost: f64,
     /// The cost the policy compares: `cost`, less the switch margin for the
     /// robot's current target (hysteresis).
     pub score: f64,
+    /// `cell` is still to be found by descending the cluster's wavefront.
+    descend: bool,
+}
+
+/// What reaching each cluster costs each robot (see [`cluster_cost_matrix`]).
+#[derive(Debug)]
+pub struct ClusterCosts {
+    /// Per robot, per cluster; `None` where the robot cannot reach it.
+    rows: Vec<Vec<Option<ClusterCost>>>,
+    /// The clusters' wavefronts and the robots' cells, when the costs came
+    /// from them.
+    descent: Option<(std::sync::Arc<crate::cost::TraversalMap>, Vec<crate::cost::CostMap>, Vec<Cell>)>,
+}
+
+impl std::ops::Deref for ClusterCosts {
+    type Target = Vec<Vec<Option<ClusterCost>>>;
+
+    fn deref(&self) -> &Self::Target {
+        &self.rows
+    }
+}
+
+impl ClusterCosts {
+    /// The cell robot `i` goes to for cluster `j`.
+    pub fn cell(&self, i: usize, j: usize) -> Option<Cell> {
+        let c = self.rows.get(i)?.get(j).copied().flatten()?;
+        match &self.descent {
+            Some((traversal, maps, starts)) if c.descend => {
+                // The cluster's cell nearest to the robot: where the wavefront's descent from the robot ends.
+                maps[j].path_to(traversal, starts[i]).and_then(|p| p.first().copied())
+            }
+            _ => Some(c.cell),
+        }
+    }
 }
 
 /// Per cluster, what reaching it costs `robot` on `map`, its cost map; `None`
@@ -184,14 +221,14 @@ pub fn cluster_costs(
                 .filter(|c| cluster.cells.contains(c))
                 .and_then(|cell| robot.cost_to(map, cell).map(|cost| (cell, cost)));
             if let Some((cell, cost)) = kept {
-                return Some(ClusterCost { cell, cost, score: cost - margin });
+                return Some(ClusterCost { cell, cost, score: cost - margin, descend: false });
             }
             cluster
                 .cells
                 .iter()
                 .filter_map(|&c| robot.cost_to(map, c).map(|cost| (c, cost)))
                 .min_by(|a, b| a.1.total_cmp(&b.1))
-                .map(|(cell, cost)| ClusterCost { cell, cost, score: cost })
+                .map(|(cell, cost)| ClusterCost { cell, cost, score: cost, descend: false })
         })
         .collect()
 }
@@ -204,11 +241,7 @@ pub fn cluster_costs(
 /// this reason); robots standing where the cluster's wavefront cannot enter
 /// (inside an inflated obstacle), or teams of mixed footprints, use their
 /// own wavefronts.
-pub fn cluster_cost_matrix(
-    input: &PlanningInput<'_>,
-    costs: &mut CostCache<'_>,
-    margin: f64,
-) -> Vec<Vec<Option<ClusterCost>>> {
+pub fn cluster_cost_matrix(input: &PlanningInput<'_>, costs: &mut CostCache<'_>, margin: f64) -> ClusterCosts {
     let kinds: Vec<crate::cost::TraversalKind> = input
         .robots
         .iter()
@@ -216,17 +249,18 @@ pub fn cluster_cost_matrix(
         .collect();
     let one_kind = kinds.windows(2).all(|w| w[0] == w[1]);
     if kinds.is_empty() || !one_kind || input.clusters.len() >= input.robots.len() {
-        return free_space_cost_maps(input, costs)
+        let rows = free_space_cost_maps(input, costs)
             .iter()
             .zip(input.robots)
             .map(|(m, r)| cluster_costs(m, input.clusters, r, margin))
             .collect();
+        return ClusterCosts { rows, descent: None };
     }
     let traversal = costs.traversal(kinds[0]);
     let maps = crate::cost::in_parallel(input.clusters, input.threads, |cluster| {
         crate::cost::cost_map(&traversal, &cluster.cells)
     });
-    input
+    let rows = input
         .robots
         .iter()
         .map(|robot| {
@@ -243,12 +277,9 @@ pub fn cluster_cost_matrix(
                 .map(|(cluster, map)| {
                     let cost = map.cost(robot.cell)?;
                     if let Some(cell) = current.filter(|c| cluster.cells.contains(c)) {
-                        return Some(ClusterCost { cell, cost, score: cost - margin });
+                        return Some(ClusterCost { cell, cost, score: cost - margin, descend: false });
                     }
-                    // The cluster's cell nearest to the robot: where the
-                    // wavefront's descent from the robot ends.
-                    let cell = map.path_to(&traversal, robot.cell).and_then(|p| p.first().copied())?;
-                    Some(ClusterCost { cell, cost, score: cost })
+                    Some(ClusterCost { cell: robot.cell, cost, score: cost, descend: true })
                 })
                 .collect();
             if row.iter().all(Option::is_none) && !traversal.passable(robot.cell) {
@@ -258,7 +289,9 @@ pub fn cluster_cost_matrix(
             }
             row
         })
-        .collect()
+        .collect();
+    let starts = input.robots.iter().map(|r| r.cell).collect();
+    ClusterCosts { rows, descent: Some((traversal, maps, starts)) }
 }
 
 /// The robot's current target cell, if it has one.

@@ -49,6 +49,10 @@ pub struct ExecutiveSettings {
     /// Most robot requests waiting for one mission; more are refused with
     /// RESOURCE_EXHAUSTED.
     pub max_queued_per_mission: usize,
+    /// Missions planned off the request path replan for map news (frontier
+    /// change, distance travelled, time) at most this often; a demand (a
+    /// robot arrived or failed, joined, ...) is planned at once.
+    pub min_plan_interval: std::time::Duration,
 }
 
 impl Default for ExecutiveSettings {
@@ -59,7 +63,8 @@ impl Default for ExecutiveSettings {
             max_robots_per_mission: 1_000,
             max_total_cells: 400_000_000,
             clock: Clock::default(),
-            max_queued_per_mission: 256,
+            max_queued_per_mission: 64,
+            min_plan_interval: std::time::Duration::from_secs(1),
         }
     }
 }
@@ -240,6 +245,7 @@ impl Executive {
             settings.planner_threads,
             Arc::clone(&next_task_id),
             Arc::clone(&metrics),
+            settings.min_plan_interval,
         );
         for cell in missions.values() {
             planner.start(Arc::clone(cell));
@@ -375,7 +381,7 @@ impl Executive {
                 robot_tokens: vec![(resumed.id, hash.clone())],
                 ..Changeset::default()
             };
-            self.store.commit(&changes).await?;
+            let changes = self.store.commit(changes).await?;
             self.tokens.write().unwrap_or_else(|e| e.into_inner()).insert(resumed.id, hash);
             mission.apply(changes);
             let token = secret.token(resumed.id);
@@ -413,7 +419,13 @@ impl Executive {
         let mut mission = self.lock_for_request(&handle).await?;
         let peers = heartbeat.peers.clone();
         let changes = mission.prepare_heartbeat(robot_id, heartbeat, Timestamp::now())?;
-        self.commit(&mut mission, changes).await?;
+        if mission.only_liveness(&changes) {
+            // Where the robot is and that it lives: written behind, with the
+            // next sweep (see `Mission::apply_unsaved`).
+            mission.apply_unsaved(changes);
+        } else {
+            self.commit(&mut mission, changes).await?;
+        }
         mission.heard_from(robot_id, self.settings.clock.now());
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
@@ -451,7 +463,7 @@ impl Executive {
         mission.check_bids(robot_id, &bids)?;
         let changes =
             Changeset { bids: Some((robot_id, bids.clone())), at: Some(Timestamp::now()), ..Changeset::default() };
-        self.store.commit(&changes).await?;
+        self.store.commit(changes).await?;
         mission.set_bids(robot_id, &bids);
         mission.heard_from(robot_id, self.settings.clock.now());
         self.planner.after_change(&handle, &mut mission).await;
@@ -653,14 +665,18 @@ impl Executive {
             if mission.replan_failed() || !mission.record().spec.lockstep {
                 self.planner.after_change(&handle, &mut mission).await;
             }
+            self.flush_unsaved(&mut mission).await;
             let Some(changes) = mission.prepare_sweep(self.settings.clock.now(), Timestamp::now()) else {
                 continue;
             };
             // One mission's failure does not keep the others from their sweep.
-            if let Err(e) = self.store.commit(&changes).await {
-                failed = Some(e);
-                continue;
-            }
+            let changes = match self.store.commit(changes).await {
+                Ok(changes) => changes,
+                Err(e) => {
+                    failed = Some(e);
+                    continue;
+                }
+            };
             for change in &changes.task_changes {
                 tracing::info!(mission = mission.record().id, task = change.task_id, state = change.state.as_str(),
                     cause = %change.transition.cause, "task ended by the executive");
@@ -674,9 +690,23 @@ impl Executive {
         }
     }
 
-    /// Stops the planners (plans being committed finish first).
+    /// Stops the planners (plans being committed finish first) and writes
+    /// what was written behind.
     pub async fn close(&self) {
         self.planner.shutdown().await;
+        let handles: Vec<_> = self.missions.read().unwrap_or_else(|e| e.into_inner()).values().cloned().collect();
+        for handle in handles {
+            self.flush_unsaved(&mut *handle.lock().await).await;
+        }
+    }
+
+    /// Writes the robot records changed by liveness reports only.
+    async fn flush_unsaved(&self, mission: &mut Mission) {
+        let Some(changes) = mission.take_unsaved() else { return };
+        if let Err(e) = self.store.commit(changes).await {
+            tracing::warn!(mission = mission.record().id, error = %e, "robot poses not written; tried again at the next sweep");
+            mission.keep_unsaved_again();
+        }
     }
 
     /// The executive's metrics, with the gauges read from its missions now.
@@ -711,8 +741,7 @@ impl Executive {
     /// Makes a changeset durable, then applies it to the mission in memory:
     /// the order every change follows, so that nothing acknowledged is lost.
     async fn commit(&self, mission: &mut Mission, changes: Changeset) -> Result<(), Error> {
-        self.store.commit(&changes).await?;
-        mission.apply(changes);
+        mission.apply(self.store.commit(changes).await?);
         Ok(())
     }
 }

@@ -70,9 +70,57 @@ impl MissionCell {
     }
 }
 
+/// A job for the planning threads.
+type Job = Box<dyn FnOnce() + Send>;
+
+/// The threads plans run on, at the lowest scheduling priority: on a busy
+/// machine the request path (the async workers, the store) goes first, and
+/// plans take what is left.
+#[derive(Debug)]
+struct PlanThreads {
+    jobs: std::sync::Mutex<std::sync::mpsc::Sender<Job>>,
+}
+
+impl PlanThreads {
+    fn start(threads: usize) -> Self {
+        let (jobs, queue) = std::sync::mpsc::channel::<Job>();
+        let queue = Arc::new(std::sync::Mutex::new(queue));
+        for k in 0..threads {
+            let queue = Arc::clone(&queue);
+            let spawned = std::thread::Builder::new().name(format!("planner-{k}")).spawn(move || {
+                // Not allowed to lower itself (a sandbox): it plans at normal priority.
+                if let Err(e) = thread_priority::set_current_thread_priority(thread_priority::ThreadPriority::Min) {
+                    tracing::debug!(error = ?e, "planner thread keeps its priority");
+                }
+                loop {
+                    let job = queue.lock().unwrap_or_else(|e| e.into_inner()).recv();
+                    let Ok(job) = job else { return };
+                    job();
+                }
+            });
+            if let Err(e) = spawned {
+                tracing::error!(error = %e, "cannot start a planner thread");
+            }
+        }
+        Self { jobs: std::sync::Mutex::new(jobs) }
+    }
+
+    /// Runs `work` on a planning thread.
+    async fn run<T: Send + 'static>(&self, work: impl FnOnce() -> T + Send + 'static) -> Result<T, Error> {
+        let (answer, outcome) = tokio::sync::oneshot::channel();
+        let job: Job = Box::new(move || {
+            let _ = answer.send(work());
+        });
+        let sent = self.jobs.lock().unwrap_or_else(|e| e.into_inner()).send(job);
+        sent.map_err(|_| Error::Internal("the planner threads are gone".to_owned()))?;
+        outcome.await.map_err(|_| Error::Internal("a planning job failed".to_owned()))
+    }
+}
+
 /// Makes the plans of every mission.
 #[derive(Debug)]
 pub(crate) struct Planner {
+    threads_pool: PlanThreads,
     store: Arc<dyn Store>,
     clock: Clock,
     /// Threads one plan may use.
@@ -83,6 +131,8 @@ pub(crate) struct Planner {
     running: AtomicUsize,
     task_ids: Arc<AtomicU64>,
     metrics: Arc<Metrics>,
+    /// Least time between two plans of a mission for map news alone.
+    min_gap: std::time::Duration,
     stop: CancellationToken,
     tasks: std::sync::Mutex<JoinSet<()>>,
 }
@@ -94,8 +144,10 @@ impl Planner {
         threads: usize,
         task_ids: Arc<AtomicU64>,
         metrics: Arc<Metrics>,
+        min_gap: std::time::Duration,
     ) -> Arc<Self> {
         Arc::new(Self {
+            threads_pool: PlanThreads::start(threads.max(1)),
             store,
             clock,
             threads: threads.max(1),
@@ -103,6 +155,7 @@ impl Planner {
             running: AtomicUsize::new(0),
             task_ids,
             metrics,
+            min_gap,
             stop: CancellationToken::new(),
             tasks: std::sync::Mutex::new(JoinSet::new()),
         })
@@ -142,7 +195,7 @@ impl Planner {
     pub(crate) async fn after_change(&self, cell: &MissionCell, mission: &mut Mission) {
         if mission.record().spec.lockstep {
             self.plan_inline(mission).await;
-        } else if mission.replan_failed() || mission.replan_reason(self.clock.now()).is_some() {
+        } else if mission.replan_failed() || mission.replan_reason_off_path(self.clock.now(), self.min_gap).is_some() {
             self.metrics.planner_triggers.inc();
             cell.wake.notify_one();
         }
@@ -165,9 +218,7 @@ impl Planner {
         let basis = mission.plan_basis();
         let job = mission.planning_job(self.threads);
         let started = std::time::Instant::now();
-        let outcome = tokio::task::spawn_blocking(move || job.run())
-            .await
-            .map_err(|e| Error::Internal(format!("planner task failed: {e}")))?;
+        let outcome = self.threads_pool.run(move || job.run()).await?;
         self.metrics.observe_plan(mission.record().spec.policy.name(), started.elapsed());
         self.commit_plan(mission, &outcome, &reason, now, &basis).await
     }
@@ -181,12 +232,11 @@ impl Planner {
         basis: &super::mission::PlanBasis,
     ) -> Result<(), Error> {
         let changes = mission.prepare_plan(outcome, reason, Timestamp::now(), &self.task_ids);
-        let started = std::time::Instant::now();
-        self.store.commit(&changes).await?;
-        self.metrics.store_commit.observe(started.elapsed().as_secs_f64());
+        let changes = self.store.commit(changes).await?;
         let reassigned = changes.new_tasks.len();
+        let demands = mission.demands();
         mission.apply(changes);
-        mission.mark_replanned(now, basis);
+        mission.mark_replanned(now, basis, demands);
         tracing::debug!(mission = mission.record().id, %reason, reassigned, replans = mission.record().replans, "replanned");
         Ok(())
     }
@@ -197,7 +247,7 @@ impl Planner {
             let (job, basis, reason, now, policy) = {
                 let mission = cell.lock().await;
                 let now = self.clock.now();
-                let Some(reason) = mission.replan_reason(now) else { return };
+                let Some(reason) = mission.replan_reason_off_path(now, self.min_gap) else { return };
                 let threads = if self.running.load(Ordering::Acquire) > 0 { 1 } else { self.threads };
                 let policy = mission.record().spec.policy.name();
                 (mission.planning_job(threads), mission.plan_basis(), reason, now, policy)
@@ -205,7 +255,7 @@ impl Planner {
             let Ok(_permit) = self.permits.acquire().await else { return };
             self.running.fetch_add(1, Ordering::AcqRel);
             let started = std::time::Instant::now();
-            let outcome = tokio::task::spawn_blocking(move || job.run()).await;
+            let outcome = self.threads_pool.run(move || job.run()).await;
             self.running.fetch_sub(1, Ordering::AcqRel);
             self.metrics.observe_plan(policy, started.elapsed());
             let outcome = match outcome {
@@ -226,8 +276,8 @@ impl Planner {
                 mission.note_replan_failed();
                 return;
             }
-            // Triggers that arrived meanwhile are served by the next round.
-            if mission.replan_reason(self.clock.now()).is_none() {
+            // Demands that arrived meanwhile are served by the next round.
+            if mission.replan_reason_off_path(self.clock.now(), self.min_gap).is_none() {
                 return;
             }
         }

@@ -253,9 +253,10 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// A mission's latest segmentation, if one was computed.
     async fn segmentation(&self, mission_id: MissionId) -> Result<Option<StoredSegmentation>, StoreError>;
 
-    /// Writes a changeset in one transaction: all of it is durable when this
-    /// returns `Ok`, none of it when it returns an error.
-    async fn commit(&self, changes: &Changeset) -> Result<(), StoreError>;
+    /// Writes a changeset in one transaction (possibly with others): all of
+    /// it is durable when this returns it back, none of it when it returns
+    /// an error.
+    async fn commit(&self, changes: Changeset) -> Result<Changeset, StoreError>;
 
     /// Writes a consistent copy of the whole store, taken while it is in
     /// use, to a new file at `path`.

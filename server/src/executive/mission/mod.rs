@@ -102,16 +102,25 @@ pub(crate) struct Mission {
     layer_changes: usize,
     /// Why the next operation must replan, when an event asked for it.
     pending_replan: Option<String>,
-    /// Counts the events that demand a new plan (robots joining or leaving
-    /// the pool, tasks ending, policy, regions, pausing): a plan made before
-    /// the latest one no longer fits.
-    epoch: u64,
+    /// Counts the changes that make a plan made before them unusable (the
+    /// policy, the forbidden regions, pausing, the sub-teams).
+    structure: u64,
+    /// Counts the events that demand a new plan (robots joining, tasks
+    /// ending, ...): a plan made before the latest one is still committed
+    /// for the robots it fits, and the demand stays for the next plan.
+    demands: u64,
     /// Tasks whose target was found explored at a replanning (not to trigger again).
     explored_tasks: std::collections::HashSet<TaskId>,
     /// Regions where no target is assigned.
     forbidden: Vec<Region>,
     /// The last replanning could not be committed: the sweep tries again.
     replan_failed: bool,
+    /// Robots whose records changed only by liveness reports since they
+    /// were last written (see [`Mission::apply_unsaved`]).
+    unsaved: std::collections::BTreeSet<RobotId>,
+    /// The robots of the write-behind changeset in flight, to mark again if
+    /// it fails.
+    unsaved_in_flight: Vec<RobotId>,
     /// Bumped whenever something an operator watches changes.
     changed: watch::Sender<u64>,
 }
@@ -144,10 +153,13 @@ impl Mission {
             frontier_churn: 0,
             layer_changes: 0,
             pending_replan: Some("executive restarted".to_owned()),
-            epoch: 0,
+            structure: 0,
+            demands: 0,
             explored_tasks: std::collections::HashSet::new(),
             forbidden,
             replan_failed: false,
+            unsaved: std::collections::BTreeSet::new(),
+            unsaved_in_flight: Vec::new(),
             changed: watch::channel(0).0,
             record,
         };
@@ -507,6 +519,48 @@ impl Mission {
         Ok(changes)
     }
 
+    /// Whether a prepared heartbeat only says where a robot is and that it
+    /// lives: no task starts or ends, nothing is blacklisted, and the robot
+    /// was not lost. Losing such a report in a crash is the same as losing
+    /// it on the way (the robot reports again within a second), so it is
+    /// acknowledged once applied and written behind; everything else is
+    /// written before it is acknowledged.
+    pub(crate) fn only_liveness(&self, changes: &Changeset) -> bool {
+        let [next] = changes.robots.as_slice() else { return false };
+        let Ok(now) = self.robot(next.id) else { return false };
+        let mut same = next.clone();
+        same.pose = now.pose;
+        same.distance_m = now.distance_m;
+        same.last_seen = now.last_seen;
+        same.state = now.state;
+        changes.task_changes.is_empty()
+            && changes.new_tasks.is_empty()
+            && changes.blacklisted.is_empty()
+            && changes.mission.is_none()
+            && same == *now
+    }
+
+    /// Applies a liveness report without writing it (see [`Mission::only_liveness`]).
+    pub(crate) fn apply_unsaved(&mut self, changes: Changeset) {
+        self.unsaved.extend(changes.robots.iter().map(|r| r.id));
+        self.apply(changes);
+    }
+
+    /// The records of the robots changed only by liveness reports, to write.
+    pub(crate) fn take_unsaved(&mut self) -> Option<Changeset> {
+        if self.unsaved.is_empty() {
+            return None;
+        }
+        self.unsaved_in_flight = std::mem::take(&mut self.unsaved).into_iter().collect();
+        let robots = self.unsaved_in_flight.iter().filter_map(|id| self.robots.get(id)).map(|s| s.record.clone());
+        Some(Changeset { robots: robots.collect(), ..Changeset::default() })
+    }
+
+    /// The write-behind changeset failed: its robots are written next time.
+    pub(crate) fn keep_unsaved_again(&mut self) {
+        self.unsaved.extend(self.unsaved_in_flight.drain(..));
+    }
+
     /// Makes a committed changeset the live state.
     pub(crate) fn apply(&mut self, changes: Changeset) {
         for logged in &changes.patches {
@@ -550,6 +604,7 @@ impl Mission {
         if let Some((_, policy)) = changes.policy {
             self.policy = Arc::from(policy.build());
             self.record.spec.policy = policy;
+            self.structure += 1;
             self.demand_replan("policy changed".to_owned());
         }
         if let Some(counters) = changes.mission {
@@ -562,7 +617,7 @@ impl Mission {
                 self.demand_replan("mission resumed".to_owned());
             } else if counters.paused && !self.record.paused {
                 // A plan made before the pause must not be committed after it.
-                self.epoch += 1;
+                self.structure += 1;
             }
             self.record.state = counters.state;
             self.record.replans = counters.replans;
@@ -578,9 +633,6 @@ impl Mission {
             slot.record = robot;
             if was_lost && !is_lost {
                 self.demand_replan(format!("robot {id} reported again"));
-            } else if is_lost && !was_lost {
-                // It left the pool: a plan made with it no longer fits.
-                self.epoch += 1;
             }
         }
         for entry in changes.blacklisted {
@@ -594,6 +646,7 @@ impl Mission {
         if !changes.forbidden.is_empty() || !changes.allowed.is_empty() {
             self.forbidden.retain(|r| !changes.allowed.contains(&r.id));
             self.forbidden.extend(changes.forbidden);
+            self.structure += 1;
             self.demand_replan("forbidden regions changed".to_owned());
         }
         self.changed.send_modify(|v| *v += 1);

@@ -45,6 +45,8 @@ pub(crate) struct PlanningJob {
 pub(crate) struct JobOutcome {
     /// The robots planned for, in the order of `plan.targets`.
     order: Vec<RobotId>,
+    /// The targets that were frontier cells of the map the plan was made on.
+    frontier_targets: std::collections::HashSet<Cell>,
     /// Targets of the robots in the pool.
     pub(crate) plan: Plan,
     /// For robots exploring an operator's region: the region's next frontier,
@@ -151,7 +153,19 @@ impl PlanningJob {
             }
         }
         let undecided = self.order.is_empty() && !explored;
+        let frontier_targets = self
+            .parts
+            .iter()
+            .flat_map(|part| {
+                targets
+                    .iter()
+                    .flatten()
+                    .map(|t| t.cell)
+                    .filter(|&cell| exploration::frontier::is_frontier(&part.grid, cell))
+            })
+            .collect();
         JobOutcome {
+            frontier_targets,
             order: self.order,
             plan: Plan { targets, segmentation },
             region_targets,
@@ -166,7 +180,8 @@ impl PlanningJob {
 /// The state a plan was made on (see [`Mission::plan_still_fits`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct PlanBasis {
-    epoch: u64,
+    structure: u64,
+    demands: u64,
     frontier_churn: usize,
     layer_changes: usize,
 }
@@ -221,6 +236,18 @@ impl Mission {
             return Some("the frontier changed after completion".to_owned());
         }
         None
+    }
+
+    /// Why a mission planned off the request path should replan now: what
+    /// [`Mission::replan_reason`] says, except that the triggers that only
+    /// say the map changed (the frontier, distance travelled, time) wait
+    /// until `min_gap` has passed since the last plan. A demand (a task
+    /// ended, a robot joined, ...) is planned at once.
+    pub(crate) fn replan_reason_off_path(&self, now: Instant, min_gap: std::time::Duration) -> Option<String> {
+        if self.pending_replan.is_none() && now.duration_since(self.last_replan) < min_gap {
+            return None;
+        }
+        self.replan_reason(now)
     }
 
     /// The inputs of a replanning.
@@ -367,6 +394,7 @@ impl Mission {
         let Some(slot) = self.robots.get_mut(&robot).filter(|s| s.peers != peers) else { return };
         slot.peers = peers;
         if self.record.spec.scoped_by_communication {
+            self.structure += 1;
             self.demand_replan(format!("robot {robot}'s sub-team changed"));
         }
     }
@@ -407,6 +435,14 @@ impl Mission {
                     gain_region: None,
                 })
             } else {
+                // A plan made off the lock may target what was explored
+                // meanwhile: that robot keeps what it has until the next plan.
+                let explored_since =
+                    |cell: Cell| outcome.frontier_targets.contains(&cell) && !self.frontier.contains(cell);
+                if !self.record.spec.scoped_by_communication && target.as_ref().is_some_and(|t| explored_since(t.cell))
+                {
+                    continue;
+                }
                 target.as_ref().map(|t| TaskDraft {
                     kind: TaskKind::Explore,
                     target: frame.world_from_cell(t.cell),
@@ -492,7 +528,9 @@ impl Mission {
     }
 
     /// Resets the replanning triggers after a committed replanning.
-    pub(crate) fn mark_replanned(&mut self, now: Instant, basis: &PlanBasis) {
+    /// `demands_before_commit` is [`Mission::demands`] just before the plan's
+    /// own changes were applied: a demand made after the snapshot stays.
+    pub(crate) fn mark_replanned(&mut self, now: Instant, basis: &PlanBasis, demands_before_commit: u64) {
         self.replan_failed = false;
         let frame = self.record.spec.frame;
         let explored: Vec<TaskId> = self
@@ -507,26 +545,39 @@ impl Mission {
         // What changed while the plan was made still counts towards the next.
         self.frontier_churn = self.frontier_churn.saturating_sub(basis.frontier_churn);
         self.layer_changes = self.layer_changes.saturating_sub(basis.layer_changes);
-        self.pending_replan = None;
+        if demands_before_commit == basis.demands {
+            self.pending_replan = None;
+        }
     }
 
     /// What a plan is made on, to tell at commit whether it still fits.
     pub(crate) fn plan_basis(&self) -> PlanBasis {
-        PlanBasis { epoch: self.epoch, frontier_churn: self.frontier_churn, layer_changes: self.layer_changes }
+        PlanBasis {
+            structure: self.structure,
+            demands: self.demands,
+            frontier_churn: self.frontier_churn,
+            layer_changes: self.layer_changes,
+        }
     }
 
-    /// Whether a plan made on `basis` may still be committed: nothing that
-    /// demands a new plan happened since (map updates and moves alone do
-    /// not; they count towards the next replanning).
+    /// Whether a plan made on `basis` may still be committed: neither the
+    /// policy, the forbidden regions, pausing nor the sub-teams changed
+    /// since. Other changes leave it usable for the robots it still fits
+    /// ([`Mission::prepare_plan`] checks each), and what they demand is
+    /// planned next.
     pub(crate) fn plan_still_fits(&self, basis: &PlanBasis) -> bool {
-        self.epoch == basis.epoch && !self.record.paused
+        self.structure == basis.structure && !self.record.paused
     }
 
-    /// Asks for a replanning at the next opportunity, and makes any plan in
-    /// the making stale.
+    /// How many demands for a plan there have been.
+    pub(crate) fn demands(&self) -> u64 {
+        self.demands
+    }
+
+    /// Asks for a replanning at the next opportunity.
     pub(super) fn demand_replan(&mut self, reason: String) {
         self.pending_replan = Some(reason);
-        self.epoch += 1;
+        self.demands += 1;
     }
 }
 
@@ -608,8 +659,9 @@ mod tests {
         let reason = mission.replan_reason(Instant::now()).expect("a plan is due");
         let outcome = mission.planning_job(1).run();
         let changes = mission.prepare_plan(&outcome, &reason, Timestamp(1), ids);
+        let demands = mission.demands();
         mission.apply(changes.clone());
-        mission.mark_replanned(Instant::now(), &basis);
+        mission.mark_replanned(Instant::now(), &basis, demands);
         changes
     }
 
@@ -629,10 +681,8 @@ mod tests {
     }
 
     #[test]
-    fn a_plan_made_before_a_task_ended_no_longer_fits() {
+    fn a_plan_made_before_the_policy_changed_no_longer_fits() {
         let mut mission = mission();
-        let ids = AtomicU64::new(0);
-        plan(&mut mission, &ids);
         let basis = mission.plan_basis();
         // Map news alone: the plan still fits (it counts towards the next one).
         let more = Patch::from_probabilities(CellRect::new(20, 0, 2, 20), &[0.1; 40], &[]).unwrap();
@@ -641,14 +691,35 @@ mod tests {
             ..Changeset::default()
         });
         assert!(mission.plan_still_fits(&basis));
-        // A task ends (the robot arrived): a new plan is needed; the old no longer fits.
+        mission.apply(Changeset {
+            policy: Some((1, PolicyConfig::default_for("minpos").unwrap())),
+            ..Changeset::default()
+        });
+        assert!(!mission.plan_still_fits(&basis));
+    }
+
+    #[test]
+    fn a_demand_made_while_a_plan_is_made_stays_after_it() {
+        let mut mission = mission();
+        let ids = AtomicU64::new(0);
+        plan(&mut mission, &ids);
+        // A robot arrives while the next plan is made.
+        let basis = mission.plan_basis();
+        let outcome = mission.planning_job(1).run();
         let task = mission.open_tasks.values().next().unwrap().clone();
         mission.apply(Changeset {
             task_changes: vec![transition(&task, TaskState::Reached, "robot arrived", Actor::Robot, Timestamp(2))],
             ..Changeset::default()
         });
-        assert!(!mission.plan_still_fits(&basis));
-        assert!(mission.replan_reason(Instant::now()).is_some_and(|r| r.contains("robot arrived")));
+        assert!(mission.plan_still_fits(&basis), "the plan is still good for the others");
+        let changes = mission.prepare_plan(&outcome, "test", Timestamp(3), &ids);
+        let demands = mission.demands();
+        mission.apply(changes);
+        mission.mark_replanned(Instant::now(), &basis, demands);
+        assert!(
+            mission.replan_reason(Instant::now()).is_some_and(|r| r.contains("robot arrived")),
+            "it is planned next"
+        );
     }
 
     #[test]
@@ -667,8 +738,9 @@ mod tests {
         });
         assert!(mission.plan_still_fits(&basis));
         let changes = mission.prepare_plan(&outcome, "test", Timestamp(3), &ids);
+        let demands = mission.demands();
         mission.apply(changes);
-        mission.mark_replanned(Instant::now(), &basis);
+        mission.mark_replanned(Instant::now(), &basis, demands);
         assert!(mission.replan_reason(Instant::now()).is_some(), "the churn after the snapshot is kept");
     }
 

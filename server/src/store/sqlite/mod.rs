@@ -3,6 +3,7 @@
 //!
 //! [`rows`] reads records back and checks them; [`write`] writes changesets.
 
+mod group;
 mod rows;
 mod write;
 
@@ -42,6 +43,9 @@ pub enum Durability {
 pub struct SqliteStore {
     pool: SqlitePool,
     path: PathBuf,
+    /// The group committer's queue (see [`group`]); taken at close.
+    commits: Arc<std::sync::Mutex<Option<tokio::sync::mpsc::Sender<group::Pending>>>>,
+    committer: Arc<std::sync::Mutex<Option<tokio::task::JoinHandle<()>>>>,
     /// Held until the store is closed or every clone of it is dropped.
     lock: Arc<std::sync::Mutex<Option<StoreLock>>>,
 }
@@ -50,6 +54,15 @@ impl SqliteStore {
     /// Opens (creating if needed) the database at `path` and applies
     /// migrations; refused while another executive holds it.
     pub async fn open(path: &Path, durability: Durability) -> Result<Self, StoreError> {
+        Self::open_measured(path, durability, None).await
+    }
+
+    /// [`SqliteStore::open`], with commit latency and group sizes counted in `metrics`.
+    pub async fn open_measured(
+        path: &Path,
+        durability: Durability,
+        metrics: Option<Arc<crate::metrics::Metrics>>,
+    ) -> Result<Self, StoreError> {
         check_path(path)?;
         let lock = StoreLock::acquire(path)?;
         let options = SqliteConnectOptions::from_str("sqlite:")?
@@ -64,12 +77,25 @@ impl SqliteStore {
             .busy_timeout(Duration::from_secs(5));
         let pool = SqlitePoolOptions::new().max_connections(4).connect_with(options).await?;
         MIGRATOR.run(&pool).await?;
-        Ok(Self { pool, path: path.to_owned(), lock: Arc::new(std::sync::Mutex::new(Some(lock))) })
+        let (commits, committer) = group::start(pool.clone(), metrics);
+        Ok(Self {
+            pool,
+            path: path.to_owned(),
+            commits: Arc::new(std::sync::Mutex::new(Some(commits))),
+            committer: Arc::new(std::sync::Mutex::new(Some(committer))),
+            lock: Arc::new(std::sync::Mutex::new(Some(lock))),
+        })
     }
 
     /// Closes every connection, checkpointing the WAL, and lets go of the
     /// database for the next executive.
     pub async fn close(&self) {
+        // The committer writes what is queued, then ends.
+        self.commits.lock().unwrap_or_else(|e| e.into_inner()).take();
+        let committer = self.committer.lock().unwrap_or_else(|e| e.into_inner()).take();
+        if let Some(committer) = committer {
+            let _ = committer.await;
+        }
         self.pool.close().await;
         self.lock.lock().unwrap_or_else(|e| e.into_inner()).take();
     }
@@ -340,25 +366,16 @@ impl Store for SqliteStore {
         row.map(|row| rows::segmentation_from_row(&row, frame)).transpose()
     }
 
-    async fn commit(&self, changes: &Changeset) -> Result<(), StoreError> {
+    async fn commit(&self, changes: Changeset) -> Result<Changeset, StoreError> {
         if changes.is_empty() {
-            return Ok(());
+            return Ok(changes);
         }
-        let mut conn = self.pool.acquire().await?;
-        let written = async {
-            // IMMEDIATE: take the write lock now, not halfway through.
-            let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
-            write::changeset(&mut tx, changes).await?;
-            tx.commit().await?;
-            Ok::<_, StoreError>(())
-        }
-        .await;
-        if written.is_err() {
-            // Never back to the pool in a state nobody can vouch for: closing
-            // the connection rolls back whatever SQLite still holds open.
-            conn.close_on_drop();
-        }
-        written
+        let queue = self.commits.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        let closed = || StoreError::Corrupt("the store is closed".to_owned());
+        let queue = queue.ok_or_else(closed)?;
+        let (reply, answer) = tokio::sync::oneshot::channel();
+        queue.send((changes, reply)).await.map_err(|_| closed())?;
+        answer.await.map_err(|_| closed())?
     }
 
     async fn backup(&self, path: &Path) -> Result<(), StoreError> {

@@ -120,7 +120,7 @@ async fn a_changeset_round_trips_through_a_real_file() {
         created_at: Timestamp(3_000),
     };
     store
-        .commit(&Changeset {
+        .commit(Changeset {
             mission: Some(MissionCounters {
                 id: mission.id,
                 state: MissionState::Completed,
@@ -162,7 +162,7 @@ async fn a_changeset_round_trips_through_a_real_file() {
         .await
         .unwrap();
     store
-        .commit(&Changeset {
+        .commit(Changeset {
             task_changes: vec![TaskChange {
                 task_id: 7,
                 state: TaskState::Reached,
@@ -257,7 +257,7 @@ async fn a_failed_changeset_writes_nothing() {
         transitions: vec![],
     };
     let result =
-        store.commit(&Changeset { robots: vec![moved], new_tasks: vec![bad_task], ..Changeset::default() }).await;
+        store.commit(Changeset { robots: vec![moved], new_tasks: vec![bad_task], ..Changeset::default() }).await;
     assert!(result.is_err());
     assert_eq!(store.robots(&mission).await.unwrap(), vec![robot]);
 }
@@ -271,7 +271,7 @@ async fn stored_mission(dir: &std::path::Path) -> std::path::PathBuf {
     let robot = store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(1)).await.unwrap();
     let patch = Patch::from_probabilities(CellRect::new(1, 1, 2, 1), &[0.2, 0.9], &[]).unwrap();
     store
-        .commit(&Changeset { patches: vec![LoggedPatch { robot_id: robot.id, seq: 1, patch }], ..Changeset::default() })
+        .commit(Changeset { patches: vec![LoggedPatch { robot_id: robot.id, seq: 1, patch }], ..Changeset::default() })
         .await
         .unwrap();
     store.close().await;
@@ -367,4 +367,39 @@ async fn a_backup_is_a_consistent_store() {
     let missions = restored.missions().await.unwrap();
     assert_eq!(missions, store.missions().await.unwrap());
     assert_eq!(restored.patches(&missions[0]).await.unwrap().len(), 1);
+}
+
+/// Changesets that arrive together are written together; one that breaks a
+/// constraint fails alone, and every other is durable.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_group_commit_fails_only_the_bad_changeset() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("group.db");
+    let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
+    let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
+    let event = |i: u64| Changeset {
+        events: vec![MissionEvent {
+            id: 0,
+            mission_id: mission.id,
+            at: Timestamp(i as i64),
+            kind: "note".into(),
+            detail: format!("event {i}"),
+            actor: "test".into(),
+        }],
+        ..Changeset::default()
+    };
+    let bad = Changeset {
+        events: vec![MissionEvent { mission_id: 999, ..event(0).events[0].clone() }],
+        ..Changeset::default()
+    };
+    let mut commits = tokio::task::JoinSet::new();
+    for i in 0..40 {
+        let (store, changes) = (store.clone(), if i == 17 { bad.clone() } else { event(i) });
+        commits.spawn(async move { store.commit(changes).await.is_ok() });
+    }
+    let outcomes = commits.join_all().await;
+    assert_eq!(outcomes.iter().filter(|ok| !**ok).count(), 1, "only the bad changeset fails");
+    store.close().await;
+    let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
+    assert_eq!(store.events(mission.id).await.unwrap().len(), 39);
 }

@@ -11,12 +11,99 @@ use std::collections::BTreeMap;
 use sqlx::SqliteConnection;
 
 use super::rows::{critical_points_json, encode_cells, encode_labels, leftovers_json, segments_json};
-use crate::domain::{RobotRecord, TaskId, TaskState, Timestamp, Transition};
-use crate::store::{Changeset, StoreError};
+use crate::domain::{MissionId, RobotId, RobotRecord, TaskId, TaskState, Timestamp, Transition};
+use crate::store::{Changeset, LoggedPatch, MissionCounters, StoreError};
 
-/// Writes `changes` inside the transaction open on `tx`.
-pub(super) async fn changeset(tx: &mut SqliteConnection, changes: &Changeset) -> Result<(), StoreError> {
-    let now = changes.at.unwrap_or_else(Timestamp::now);
+/// Writes a group of changesets, in order, inside the transaction open on
+/// `tx`. Robot records and mission counters are written whole, so only the
+/// last of each in the group is written, once, after everything they may
+/// refer to.
+pub(super) async fn group(tx: &mut SqliteConnection, changesets: &[Changeset]) -> Result<(), StoreError> {
+    let mut robots: BTreeMap<RobotId, &RobotRecord> = BTreeMap::new();
+    let mut counters: BTreeMap<MissionId, (&MissionCounters, Timestamp)> = BTreeMap::new();
+    let mut patches = Vec::new();
+    for changes in changesets {
+        let now = changes.at.unwrap_or_else(Timestamp::now);
+        body(tx, changes, now).await?;
+        robots.extend(changes.robots.iter().map(|r| (r.id, r)));
+        counters.extend(changes.mission.iter().map(|m| (m.id, (m, now))));
+        patches.extend(changes.patches.iter().map(|p| (p, now)));
+    }
+    // Many rows per statement: each statement is a round trip to SQLite's thread.
+    for chunk in patches.chunks(ROWS_PER_STATEMENT) {
+        write_patches(tx, chunk).await?;
+    }
+    let robots: Vec<&RobotRecord> = robots.into_values().collect();
+    for chunk in robots.chunks(ROWS_PER_STATEMENT) {
+        write_robots(tx, chunk).await?;
+    }
+    for (m, now) in counters.into_values() {
+        write_counters(tx, m, now).await?;
+    }
+    Ok(())
+}
+
+/// Rows written by one statement (SQLite takes at most 32 766 parameters).
+const ROWS_PER_STATEMENT: usize = 500;
+
+/// Appends map patches to the log, in order, in one statement.
+async fn write_patches(tx: &mut SqliteConnection, patches: &[(&LoggedPatch, Timestamp)]) -> Result<(), StoreError> {
+    let mut insert = sqlx::QueryBuilder::<sqlx::Sqlite>::new(
+        "INSERT INTO map_patches (mission_id, robot_id, seq, x, y, width, height, cells, received_at) ",
+    );
+    insert.push_values(patches, |mut row, (logged, now)| {
+        let rect = logged.patch.rect();
+        row.push("(SELECT mission_id FROM robots WHERE id = ")
+            .push_bind_unseparated(logged.robot_id as i64)
+            .push_unseparated(")")
+            .push_bind(logged.robot_id as i64)
+            .push_bind(logged.seq as i64)
+            .push_bind(i64::from(rect.x))
+            .push_bind(i64::from(rect.y))
+            .push_bind(i64::from(rect.width))
+            .push_bind(i64::from(rect.height))
+            .push_bind(encode_cells(&logged.patch))
+            .push_bind(now.millis());
+    });
+    insert.build().execute(&mut *tx).await?;
+    Ok(())
+}
+
+/// Writes robot records whole, in one statement.
+async fn write_robots(tx: &mut SqliteConnection, robots: &[&RobotRecord]) -> Result<(), StoreError> {
+    let mut update = sqlx::QueryBuilder::<sqlx::Sqlite>::new(
+        "UPDATE robots SET sensor_range_m = v.column2, field_of_view_rad = v.column3, speed_mps = v.column4,
+                footprint_radius_m = v.column5, state = v.column6, pose_x = v.column7, pose_y = v.column8,
+                pose_theta = v.column9, last_map_seq = v.column10, distance_m = v.column11,
+                assignment_version = v.column12, assigned_distance_m = v.column13, current_task_id = v.column14,
+                last_seen = v.column15, lost = v.column16
+         FROM (",
+    );
+    update.push_values(robots, |mut row, robot| {
+        row.push_bind(robot.id as i64)
+            .push_bind(robot.capabilities.sensor_range_m)
+            .push_bind(robot.capabilities.field_of_view_rad)
+            .push_bind(robot.capabilities.speed_mps)
+            .push_bind(robot.capabilities.footprint_radius_m)
+            .push_bind(robot.state.as_str())
+            .push_bind(robot.pose.position.x)
+            .push_bind(robot.pose.position.y)
+            .push_bind(robot.pose.heading)
+            .push_bind(robot.last_map_seq as i64)
+            .push_bind(robot.distance_m)
+            .push_bind(robot.assignment_version as i64)
+            .push_bind(robot.assigned_distance_m)
+            .push_bind(robot.current_task.map(|t| t as i64))
+            .push_bind(robot.last_seen.millis())
+            .push_bind(i64::from(robot.lost));
+    });
+    update.push(") AS v WHERE robots.id = v.column1");
+    update.build().execute(&mut *tx).await?;
+    Ok(())
+}
+
+/// Everything of a changeset but its robot records and mission counters.
+async fn body(tx: &mut SqliteConnection, changes: &Changeset, now: Timestamp) -> Result<(), StoreError> {
     // Tasks first: robots refer to them.
     for task in &changes.new_tasks {
         sqlx::query(
@@ -57,26 +144,6 @@ pub(super) async fn changeset(tx: &mut SqliteConnection, changes: &Changeset) ->
             .execute(&mut *tx)
             .await?;
         write_transition(tx, change.task_id, &change.transition).await?;
-    }
-    for robot in &changes.robots {
-        write_robot(tx, robot).await?;
-    }
-    for logged in &changes.patches {
-        let rect = logged.patch.rect();
-        sqlx::query(
-            "INSERT INTO map_patches (mission_id, robot_id, seq, x, y, width, height, cells, received_at)
-             SELECT mission_id, ?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8 FROM robots WHERE id = ?1",
-        )
-        .bind(logged.robot_id as i64)
-        .bind(logged.seq as i64)
-        .bind(i64::from(rect.x))
-        .bind(i64::from(rect.y))
-        .bind(i64::from(rect.width))
-        .bind(i64::from(rect.height))
-        .bind(encode_cells(&logged.patch))
-        .bind(now.millis())
-        .execute(&mut *tx)
-        .await?;
     }
     if let Some((mission_id, policy)) = &changes.policy {
         let params: BTreeMap<&str, f64> = policy.params().clone();
@@ -158,22 +225,6 @@ pub(super) async fn changeset(tx: &mut SqliteConnection, changes: &Changeset) ->
             .execute(&mut *tx)
             .await?;
     }
-    if let Some(m) = &changes.mission {
-        sqlx::query(
-            "UPDATE missions SET state = ?1, replans = ?2, map_updates = ?3, updated_at = ?4, paused = ?5,
-                    leftovers = ?6
-             WHERE id = ?7",
-        )
-        .bind(m.state.as_str())
-        .bind(m.replans as i64)
-        .bind(m.map_updates as i64)
-        .bind(now.millis())
-        .bind(i64::from(m.paused))
-        .bind(leftovers_json(&m.leftovers))
-        .bind(m.id as i64)
-        .execute(&mut *tx)
-        .await?;
-    }
     for (robot, hash) in &changes.robot_tokens {
         sqlx::query("UPDATE robots SET token_sha256 = ?1 WHERE id = ?2")
             .bind(hash)
@@ -207,30 +258,19 @@ pub(super) async fn changeset(tx: &mut SqliteConnection, changes: &Changeset) ->
     Ok(())
 }
 
-async fn write_robot(tx: &mut SqliteConnection, robot: &RobotRecord) -> Result<(), StoreError> {
+async fn write_counters(tx: &mut SqliteConnection, m: &MissionCounters, now: Timestamp) -> Result<(), StoreError> {
     sqlx::query(
-        "UPDATE robots SET sensor_range_m = ?1, field_of_view_rad = ?2, speed_mps = ?3, footprint_radius_m = ?4,
-                state = ?5, pose_x = ?6, pose_y = ?7, pose_theta = ?8, last_map_seq = ?9, distance_m = ?10,
-                assignment_version = ?11, assigned_distance_m = ?12, current_task_id = ?13, last_seen = ?14,
-                lost = ?15
-         WHERE id = ?16",
+        "UPDATE missions SET state = ?1, replans = ?2, map_updates = ?3, updated_at = ?4, paused = ?5,
+                    leftovers = ?6
+             WHERE id = ?7",
     )
-    .bind(robot.capabilities.sensor_range_m)
-    .bind(robot.capabilities.field_of_view_rad)
-    .bind(robot.capabilities.speed_mps)
-    .bind(robot.capabilities.footprint_radius_m)
-    .bind(robot.state.as_str())
-    .bind(robot.pose.position.x)
-    .bind(robot.pose.position.y)
-    .bind(robot.pose.heading)
-    .bind(robot.last_map_seq as i64)
-    .bind(robot.distance_m)
-    .bind(robot.assignment_version as i64)
-    .bind(robot.assigned_distance_m)
-    .bind(robot.current_task.map(|t| t as i64))
-    .bind(robot.last_seen.millis())
-    .bind(i64::from(robot.lost))
-    .bind(robot.id as i64)
+    .bind(m.state.as_str())
+    .bind(m.replans as i64)
+    .bind(m.map_updates as i64)
+    .bind(now.millis())
+    .bind(i64::from(m.paused))
+    .bind(leftovers_json(&m.leftovers))
+    .bind(m.id as i64)
     .execute(&mut *tx)
     .await?;
     Ok(())
