@@ -688,16 +688,17 @@ fn metric(row: &Row, name: &str) -> Option<f64> {
 
 /// Groups the successful runs' figures by cell.
 pub fn samples(rows: &[Row], name: &str) -> BTreeMap<CellKey, Sample> {
-    let mut out: BTreeMap<CellKey, Vec<f64>> = BTreeMap::new();
+    let mut out: BTreeMap<CellKey, Vec<(u64, f64)>> = BTreeMap::new();
     for row in rows.iter().filter(|r| r.get("status").map(String::as_str) == Some("ok")) {
         let key =
             (row["world"].clone(), row["label"].clone(), row["robots"].parse().unwrap_or(0), row["comm_range"].clone());
         let value = if name == "distance" { metric(row, "distance_mean") } else { metric(row, name) };
+        let seed = row.get("seed").and_then(|s| s.parse().ok()).unwrap_or(0);
         if let Some(v) = value {
-            out.entry(key).or_default().push(v);
+            out.entry(key).or_default().push((seed, v));
         }
     }
-    out.into_iter().map(|(k, v)| (k, Sample::new(v))).collect()
+    out.into_iter().map(|(k, v)| (k, Sample::seeded(v))).collect()
 }
 
 /// Writes `summary.csv`: per cell, runs, completions, and mean ± 95 % CI of each figure.

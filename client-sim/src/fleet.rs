@@ -11,11 +11,17 @@
 //! The models of the papers' simulators, each a setting with the paper's
 //! value as its default: cells of 15 cm and interference (robots closer than
 //! a set distance move with probability 0.7; Burgard et al. 2005, §IV-C),
-//! 360° sensors, teams started together at one random cell, and limited
-//! communication (§II-D).
+//! 360° sensors, teams started close together, and limited communication
+//! (§II-D). Robots take up space: one robot per cell, a robot waits when its
+//! next cell is taken, and after waiting a few steps it goes around the
+//! robot in its way. The embedded executive's clock is the simulation's: a
+//! step lasts the time a robot of the reference speed needs for one cell,
+//! so leases, stalls and replanning intervals are in simulated seconds and a
+//! seed gives the same run on any machine at any load.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashSet};
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
@@ -112,7 +118,8 @@ pub enum FaultKind {
 /// Where the team starts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Layout {
-    /// All robots at the start cell (every paper).
+    /// Packed around the start cell, one robot per cell (the papers' teams
+    /// start close to each other).
     #[default]
     Together,
     /// Each robot at its own random cell of the main free area.
@@ -341,6 +348,8 @@ pub(crate) struct EmbeddedExecutive {
     pub(crate) url: String,
     /// Its operator token.
     pub(crate) token: String,
+    /// Its clock, moved on with the simulation's steps; `None`: the wall clock.
+    clock: Option<Arc<coordinator::ManualClock>>,
     stop: CancellationToken,
     task: Option<tokio::task::JoinHandle<Result<(), coordinator::ServeError>>>,
     _dir: Option<tempfile::TempDir>,
@@ -357,7 +366,9 @@ impl EmbeddedExecutive {
     async fn start(db: Option<PathBuf>, operator_token: String) -> Result<Self, SimError> {
         // The fleet waits for every acknowledgement: a crash of this process
         // takes the fleet with it, so power-cut durability buys nothing here.
-        Self::start_with(db, operator_token, coordinator::Durability::Normal).await
+        // Its time is the simulation's: leases, stalls and replanning
+        // intervals in simulated seconds, the same on any machine.
+        Self::start_with(db, operator_token, coordinator::Durability::Normal, true).await
     }
 
     /// An executive as a deployment runs one (every commit survives a power
@@ -367,13 +378,14 @@ impl EmbeddedExecutive {
             Some(token) => token,
             None => coordinator::auth::random_operator_token().map_err(|e| SimError::Executive(e.to_string()))?,
         };
-        Self::start_with(None, token, coordinator::Durability::Full).await
+        Self::start_with(None, token, coordinator::Durability::Full, false).await
     }
 
     async fn start_with(
         db: Option<PathBuf>,
         operator_token: String,
         durability: coordinator::Durability,
+        simulated_time: bool,
     ) -> Result<Self, SimError> {
         let (path, dir) = match db {
             Some(path) => (path, None),
@@ -390,8 +402,13 @@ impl EmbeddedExecutive {
         let mut config = coordinator::Config::new(path);
         config.operator_token = Some(operator_token.clone());
         config.durability = durability;
+        let clock = simulated_time.then(|| {
+            let (clock, handle) = coordinator::Clock::manual();
+            config.executive.clock = clock;
+            handle
+        });
         let task = tokio::spawn(coordinator::run(listener, shutdown, config));
-        Ok(Self { url: format!("http://{address}"), token: operator_token, stop, task: Some(task), _dir: dir })
+        Ok(Self { url: format!("http://{address}"), token: operator_token, clock, stop, task: Some(task), _dir: dir })
     }
 
     pub(crate) async fn stop(mut self) -> Result<(), SimError> {
@@ -425,7 +442,8 @@ pub async fn run(config: &RunConfig) -> Result<RunReport, SimError> {
             (Some(executive), url, Some(token))
         }
     };
-    let result = run_against(config, world, &url, token.as_deref()).await;
+    let clock = embedded.as_ref().and_then(|e| e.clock.clone());
+    let result = run_against(config, world, &url, token.as_deref(), clock).await;
     if let Some(executive) = embedded {
         executive.stop().await?;
     }
@@ -436,15 +454,41 @@ pub async fn run(config: &RunConfig) -> Result<RunReport, SimError> {
 /// random cells reachable from it.
 fn start_cells(world: &World, config: &RunConfig) -> Vec<Cell> {
     match config.layout {
-        Layout::Together => vec![world.start; config.robots],
+        Layout::Together => packed_around(world, world.start, config.robots),
         Layout::Spread => {
-            let reachable: Vec<usize> = (0..world.frame.len()).filter(|&i| world.reachable[i]).collect();
+            let mut reachable: Vec<usize> = (0..world.frame.len()).filter(|&i| world.reachable[i]).collect();
             let mut rng = SplitMix64::new(config.seed ^ 0x5350_5245_4144);
-            (0..config.robots)
-                .map(|_| world.frame.cell(reachable[rng.below(reachable.len() as u64) as usize]))
+            // Distinct cells: drawn without replacement.
+            (0..config.robots.min(reachable.len()))
+                .map(|_| world.frame.cell(reachable.swap_remove(rng.below(reachable.len() as u64) as usize)))
                 .collect()
         }
     }
+}
+
+/// `n` distinct reachable cells closest to `start` (breadth first, 4-connected,
+/// neighbours in a fixed order): a team standing close together, one robot
+/// per cell, the first on the start itself.
+fn packed_around(world: &World, start: Cell, n: usize) -> Vec<Cell> {
+    let frame = world.frame;
+    let mut seen = vec![false; frame.len()];
+    let mut queue = std::collections::VecDeque::from([start]);
+    seen[frame.index(start)] = true;
+    let mut cells = Vec::with_capacity(n);
+    while let Some(cell) = queue.pop_front() {
+        if cells.len() == n {
+            break;
+        }
+        cells.push(cell);
+        for (dx, dy) in [(1, 0), (0, 1), (-1, 0), (0, -1)] {
+            let next = Cell::new(cell.x + dx, cell.y + dy);
+            if frame.contains(next) && world.reachable[frame.index(next)] && !seen[frame.index(next)] {
+                seen[frame.index(next)] = true;
+                queue.push_back(next);
+            }
+        }
+    }
+    cells
 }
 
 /// Gives robot `to` what the other robots of its cluster integrated and
@@ -460,6 +504,13 @@ fn gather(robots: &mut [SimRobot], cluster: &[usize], to: usize, world: &World) 
             (&mut high[0], &mut low[to])
         };
         sender.share_with(receiver, to, world);
+    }
+}
+
+/// Robot `from` passes what it knows to the rest of its cluster.
+fn scatter(robots: &mut [SimRobot], cluster: &[usize], from: usize, world: &World) {
+    for &to in cluster.iter().filter(|&&to| to != from) {
+        gather(robots, &[from, to], to, world);
     }
 }
 
@@ -491,7 +542,21 @@ fn communication_clusters(robots: &[SimRobot], range_cells: f64) -> Vec<Vec<usiz
     groups.into_values().collect()
 }
 
-async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<&str>) -> Result<RunReport, SimError> {
+/// Moves the executive's simulated clock on by one step (the time a robot of
+/// the reference speed takes for one cell), when it has one.
+async fn tick(clock: Option<&coordinator::ManualClock>, frame: &exploration::grid::GridFrame) {
+    if let Some(clock) = clock {
+        clock.step(Duration::from_secs_f64(frame.resolution / crate::robot::REFERENCE_SPEED_MPS)).await;
+    }
+}
+
+async fn run_against(
+    config: &RunConfig,
+    world: World,
+    url: &str,
+    token: Option<&str>,
+    clock: Option<Arc<coordinator::ManualClock>>,
+) -> Result<RunReport, SimError> {
     let started = Instant::now();
     if let Some(warning) = exploration_proto::client::plaintext_token_warning(url, token) {
         tracing::warn!("{warning}");
@@ -504,33 +569,38 @@ async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<
     let mut missions = MissionsClient::with_interceptor(channel, bearer);
     let frame = world.frame;
     let limited = config.comm_range.is_some();
-    let mission = missions
-        .create_mission(pb::CreateMissionRequest {
-            name: format!("fleet-sim {} seed {}", world.name, config.seed),
-            frame: Some(pb::MapFrame {
-                resolution: frame.resolution,
-                origin: Some(pb::Point { x: frame.origin.x, y: frame.origin.y }),
-                width: frame.width,
-                height: frame.height,
-            }),
-            policy: Some(pb::PolicySpec {
-                name: config.policy.clone(),
-                params: config.params.iter().map(|(k, v)| (k.clone(), *v)).collect(),
-            }),
-            replan: None,
-            scoped_by_communication: limited,
-            // A run steps in lock-step with the executive's plans: a seed
-            // gives the same run at any speed.
-            lockstep: true,
-            lifecycle: Some(pb::LifecycleSettings {
-                lease_s: config.lease_s.unwrap_or(0.0),
-                stall_s: config.stall_s.unwrap_or(0.0),
-                rendezvous: None,
-            }),
-        })
-        .await
-        .map_err(|status| SimError::Rpc { what: "CreateMission", status })?
-        .into_inner();
+    let request = pb::CreateMissionRequest {
+        name: format!("fleet-sim {} seed {}", world.name, config.seed),
+        frame: Some(pb::MapFrame {
+            resolution: frame.resolution,
+            origin: Some(pb::Point { x: frame.origin.x, y: frame.origin.y }),
+            width: frame.width,
+            height: frame.height,
+        }),
+        policy: Some(pb::PolicySpec {
+            name: config.policy.clone(),
+            params: config.params.iter().map(|(k, v)| (k.clone(), *v)).collect(),
+        }),
+        replan: None,
+        scoped_by_communication: limited,
+        // A run steps in lock-step with the executive's plans: a seed
+        // gives the same run at any speed.
+        lockstep: true,
+        lifecycle: Some(pb::LifecycleSettings {
+            lease_s: config.lease_s.unwrap_or(0.0),
+            stall_s: config.stall_s.unwrap_or(0.0),
+            rendezvous: None,
+        }),
+    };
+    // An executive restarting (or busy) when the run begins is waited for, as
+    // the robots wait for it later. A create that was committed but whose
+    // answer was lost leaves an unused mission behind: harmless.
+    let mission = crate::robot::retry("CreateMission", config.retry_budget, || {
+        let mut missions = missions.clone();
+        let request = request.clone();
+        async move { missions.create_mission(request).await }
+    })
+    .await?;
     if config.progress {
         eprintln!(
             "mission {} on {} ({}×{} cells of {} m, {} reachable), {} robots, policy {}",
@@ -622,13 +692,8 @@ async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<
         let mut any_task = false;
         let mut executive_done = false;
         let cells: Vec<Cell> = robots.iter().map(|r| r.cell).collect();
+        let mut occupied: HashSet<Cell> = cells.iter().copied().collect();
         for i in 0..robots.len() {
-            // Robots in range talk all the time: what one senses reaches its
-            // sub-team before the next one plans on its own map, as the
-            // executive, planning on the sub-team's map, expects.
-            if let Some(c) = cluster_of[i] {
-                gather(&mut robots, &clusters[c], i, &world);
-            }
             let robot = &mut robots[i];
             // Interference: a move near another robot succeeds with probability p.
             let blocked = config.interference.is_some_and(|f| {
@@ -638,7 +703,14 @@ async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<
                     .any(|(j, c)| j != i && c.distance(robot.cell) * frame.resolution <= f.radius_m);
                 near && !rng.chance(f.success)
             });
-            let outcome = robot.step(&world, &mut team, blocked).await?;
+            let outcome = robot.step(&world, &mut team, blocked, &mut occupied).await?;
+            // Robots in range talk all the time: what one senses reaches its
+            // sub-team at once, before any of them plans on its own map (the
+            // executive plans the sub-team on the map they share), even one
+            // that leaves the range before its next step.
+            if let Some(c) = cluster_of[i] {
+                scatter(&mut robots, &clusters[c], i, &world);
+            }
             any_task |= outcome.has_task;
             if !outcome.has_task {
                 idle_total += 1;
@@ -649,8 +721,9 @@ async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<
         let coverage = known_now as f64 / world.reachable_cells.max(1) as f64;
         curve.push(coverage as f32);
         for (slot, level) in milestones.iter_mut().zip(LEVELS) {
+            // On the base of `steps`: the number of steps taken when reached.
             if slot.is_none() && coverage >= level - 1e-12 {
-                *slot = Some(step);
+                *slot = Some(step + 1);
             }
         }
         if config.progress && step % 250 == 0 {
@@ -672,6 +745,7 @@ async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<
             break format!("the team learnt nothing for {} steps", step - last_progress.1);
         }
         step += 1;
+        tick(clock.as_deref(), &frame).await;
         if let Some(pace) = config.pace {
             tokio::time::sleep(pace).await;
         }
@@ -679,7 +753,11 @@ async fn run_against(config: &RunConfig, world: World, url: &str, token: Option<
             break format!("step limit {} reached", config.max_steps);
         }
     };
-    let home_steps = if config.return_home { return_home(&mut robots, &world, &mut team, config).await? } else { None };
+    let home_steps = if config.return_home {
+        return_home(&mut robots, &world, &mut team, config, clock.as_deref()).await?
+    } else {
+        None
+    };
     let summary = missions
         .get_mission(pb::GetMissionRequest { mission_id: mission.id })
         .await
@@ -744,17 +822,20 @@ async fn return_home(
     world: &World,
     team: &mut TeamMap,
     config: &RunConfig,
+    clock: Option<&coordinator::ManualClock>,
 ) -> Result<Option<u64>, SimError> {
     for step in 1..=config.max_steps {
         let (mut completed, mut busy) = (false, false);
+        let mut occupied: HashSet<Cell> = robots.iter().map(|r| r.cell).collect();
         for robot in robots.iter_mut() {
-            let outcome = robot.step(world, team, false).await?;
+            let outcome = robot.step(world, team, false, &mut occupied).await?;
             completed |= outcome.mission_completed;
             busy |= outcome.has_task && !outcome.dead;
         }
         if completed && !busy {
             return Ok(Some(step));
         }
+        tick(clock, &world.frame).await;
         if let Some(pace) = config.pace {
             tokio::time::sleep(pace).await;
         }

@@ -17,7 +17,7 @@
 //! with their clusters' joint map (§III); it plans on its own map and sends
 //! the executive its whole knowledge.
 
-use std::collections::VecDeque;
+use std::collections::{HashSet, VecDeque};
 use std::time::Duration;
 
 use tokio::sync::watch;
@@ -192,7 +192,12 @@ pub struct SimRobot {
     paused: bool,
     faults: Faults,
     steps: u64,
+    /// Steps it has waited for a robot in its way.
+    waited: u32,
 }
+
+/// Steps a robot waits for another in its way before it goes around it.
+const WAIT_BEFORE_DETOUR: u32 = 3;
 
 /// How a robot bids (Simmons et al. 2000, §4.1), when its mission's policy wants bids.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -316,6 +321,7 @@ impl SimRobot {
             paused: false,
             faults: Faults::default(),
             steps: 0,
+            waited: 0,
         })
     }
 
@@ -336,7 +342,15 @@ impl SimRobot {
 
     /// One time step: move (unless `blocked`: interference), sense, report,
     /// adopt the assignment.
-    pub async fn step(&mut self, world: &World, team: &mut TeamMap, blocked: bool) -> Result<StepOutcome, RobotError> {
+    /// One step: move (into free cells no other robot stands on; `occupied`
+    /// holds the team's cells and is kept up to date), sense, report.
+    pub async fn step(
+        &mut self,
+        world: &World,
+        team: &mut TeamMap,
+        blocked: bool,
+        occupied: &mut HashSet<Cell>,
+    ) -> Result<StepOutcome, RobotError> {
         let mut outcome = StepOutcome::default();
         self.steps += 1;
         if self.is_dead() {
@@ -352,7 +366,7 @@ impl SimRobot {
             if blocked {
                 continue;
             }
-            let Some(next) = self.path.pop_front() else {
+            let Some(&next) = self.path.front() else {
                 self.stride = self.stride.min(1.0);
                 break;
             };
@@ -360,6 +374,18 @@ impl SimRobot {
                 self.path.clear();
                 break;
             }
+            if occupied.contains(&next) {
+                // Another robot stands there: wait, and after a while go around it.
+                self.waited += 1;
+                if self.waited >= WAIT_BEFORE_DETOUR {
+                    self.detour(world, team, occupied);
+                }
+                break;
+            }
+            self.path.pop_front();
+            self.waited = 0;
+            occupied.remove(&self.cell);
+            occupied.insert(next);
             let (dx, dy) = (next.x - self.cell.x, next.y - self.cell.y);
             self.heading = f64::from(dy).atan2(f64::from(dx));
             self.distance_m += self.cell.distance(next) * world.frame.resolution;
@@ -394,6 +420,24 @@ impl SimRobot {
         outcome.has_task = self.task.is_some();
         outcome.mission_completed = completed;
         Ok(outcome)
+    }
+
+    /// A path to the task's target around the cells other robots stand on,
+    /// when there is one; otherwise the robot keeps waiting on its path.
+    fn detour(&mut self, world: &World, team: &TeamMap, occupied: &HashSet<Cell>) {
+        let Some(task) = self.task else { return };
+        let map = if self.limited { &self.own } else { &team.grid };
+        let free = |c: Cell| !occupied.contains(&c) || c == self.cell;
+        let path = if self.capabilities.footprint_radius_m > 0.0 {
+            let traversal = TraversalMap::free_space(map, self.capabilities.footprint_radius_m);
+            shortest_path(&world.frame, self.cell, task.target, |c| traversal.passable(c) && free(c))
+        } else {
+            shortest_path(&world.frame, self.cell, task.target, |c| map.class(c) == CellClass::Free && free(c))
+        };
+        if let Some(path) = path {
+            self.path = path.into_iter().skip(1).collect();
+            self.waited = 0;
+        }
     }
 
     /// Tells the executive at once when the robots in range change, with
@@ -749,7 +793,7 @@ async fn watch_assignments(
 
 /// Calls `call` until it succeeds, fails for good, or the executive stays
 /// unreachable for `budget`.
-async fn retry<T, F, Fut>(what: &'static str, budget: Duration, mut call: F) -> Result<T, RobotError>
+pub(crate) async fn retry<T, F, Fut>(what: &'static str, budget: Duration, mut call: F) -> Result<T, RobotError>
 where
     F: FnMut() -> Fut,
     Fut: std::future::Future<Output = Result<tonic::Response<T>, Status>>,

@@ -123,16 +123,39 @@ pub enum ServeError {
     Transport(#[from] tonic::transport::Error),
 }
 
-/// Expires leases and detects stalls every [`executive::SWEEP_PERIOD`] until `stop`.
-async fn sweep_until(executive: Arc<Executive>, stop: CancellationToken) {
-    let mut ticks = tokio::time::interval(executive::SWEEP_PERIOD);
-    ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    loop {
-        tokio::select! {
-            () = stop.cancelled() => return,
-            _ = ticks.tick() => {
-                if let Err(e) = executive.sweep().await {
-                    tracing::error!(error = %e, "lease and stall sweep failed; retrying at the next tick");
+/// Expires leases and detects stalls until `stop`: every
+/// [`executive::SWEEP_PERIOD`] on the wall clock, or at each move of a
+/// manual clock (then the mover waits for it; see [`clock`]).
+async fn sweep_until(executive: Arc<Executive>, clock: Clock, stop: CancellationToken) {
+    let sweep = || async {
+        if let Err(e) = executive.sweep().await {
+            tracing::error!(error = %e, "lease and stall sweep failed; retrying at the next tick");
+        }
+    };
+    match clock {
+        Clock::Manual(handle) => {
+            let mut moves = handle.moves();
+            loop {
+                tokio::select! {
+                    () = stop.cancelled() => return,
+                    changed = moves.changed() => {
+                        if changed.is_err() {
+                            return;
+                        }
+                        let moved = *moves.borrow_and_update();
+                        sweep().await;
+                        handle.mark_swept(moved);
+                    }
+                }
+            }
+        }
+        Clock::Tokio => {
+            let mut ticks = tokio::time::interval(executive::SWEEP_PERIOD);
+            ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            loop {
+                tokio::select! {
+                    () = stop.cancelled() => return,
+                    _ = ticks.tick() => sweep().await,
                 }
             }
         }
@@ -174,6 +197,7 @@ pub async fn run_with(
     warn_about_exposure(&auth, address, config.tls.is_some());
     let metrics = Arc::new(metrics::Metrics::new());
     let store = SqliteStore::open_measured(&config.db_path, config.durability, Some(Arc::clone(&metrics))).await?;
+    let clock = config.executive.clock.clone();
     let executive = match Executive::open(Arc::new(store.clone()), config.executive, Arc::clone(&metrics)).await {
         Ok(executive) => Arc::new(executive),
         Err(e) => {
@@ -182,7 +206,7 @@ pub async fn run_with(
         }
     };
     let streams_end = CancellationToken::new();
-    let sweeper = tokio::spawn(sweep_until(executive.clone(), streams_end.clone()));
+    let sweeper = tokio::spawn(sweep_until(executive.clone(), clock, streams_end.clone()));
     let http_server = http_listener.map(|listener| {
         tracing::info!(address = ?listener.local_addr().ok(), "HTTP serving /metrics");
         let stop = streams_end.clone().cancelled_owned();

@@ -97,7 +97,11 @@ async fn twenty_missions_survive_sigkill_at_random_moments() {
     let mut completed = 0;
     for (report, config) in &reports {
         let report = report.as_ref().unwrap_or_else(|e| panic!("{} / {}: {e}", config.policy, config.seed));
-        assert!(report.completed, "{} seed {}: {report:?}", config.policy, config.seed);
+        assert!(
+            report.completed,
+            "{} seed {}: ended {} after {} steps at coverage {:.3}",
+            config.policy, config.seed, report.ended, report.steps, report.coverage
+        );
         assert_eq!(
             report.updates_acknowledged, report.map_updates,
             "{} seed {}: every acknowledged update applied exactly once",

@@ -150,7 +150,7 @@ mod tests {
     use super::*;
     use crate::grid::testing::grid_from_picture;
     use crate::policy::Nearest;
-    use crate::policy::testing::{plan_targets, robot};
+    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
 
     fn burgard() -> Burgard {
         Burgard { beta: 1.0, occ_max: 0.6, smoothing_sigma_m: 0.0, switch_margin: 0.0 }
@@ -181,6 +181,30 @@ mod tests {
         let coordinated = plan_targets(&burgard(), &grid, &robots);
         assert_eq!(coordinated[0], Some(Cell::new(1, 1)), "{coordinated:?}");
         assert_eq!(coordinated[1], Some(Cell::new(12, 1)), "{coordinated:?}");
+    }
+
+    /// What only the discount does: two openings of one room, two metres
+    /// apart and in view of each other, and a frontier far down a corridor.
+    /// Closest frontier sends both robots to the nearer opening and greedy
+    /// (and the optimal assignment) gives the second robot the other
+    /// opening; Algorithm 1 discounts that opening by what a sensor at the
+    /// first covers (Eq. 1) and sends the second robot down the corridor.
+    #[test]
+    fn a_frontier_the_first_robot_will_see_is_worth_less_to_the_second() {
+        let grid = grid_from_picture(&[
+            "##################?#?#", //
+            "?.....................", //
+            "###########...........", //
+            "###########...........", //
+            "######################", //
+        ]);
+        let robots = [robot(0, Cell::new(12, 1), 5.0), robot(1, Cell::new(11, 3), 5.0)];
+        let (near, other, corridor) = (Some(Cell::new(18, 3)), Some(Cell::new(20, 3)), Some(Cell::new(1, 3)));
+        assert_eq!(plan_targets(&burgard(), &grid, &robots), vec![near, corridor]);
+        assert_eq!(plan_with_defaults("burgard", &grid, &robots), vec![near, corridor]);
+        assert_eq!(plan_with_defaults("nearest", &grid, &robots), vec![near, near]);
+        assert_eq!(plan_with_defaults("greedy", &grid, &robots), vec![near, other]);
+        assert_eq!(plan_with_defaults("hungarian", &grid, &robots), vec![near, other]);
     }
 
     /// Eq. 1 with ray casting: a frontier cell behind a wall is not covered

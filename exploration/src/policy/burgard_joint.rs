@@ -14,7 +14,16 @@
 //! product stays within the limit, and beyond that "a randomized search
 //! technique combined with hill-climbing" (§IV-C): restarts from Algorithm
 //! 1's assignment and from seeded random ones, each improved one robot at a
-//! time until no change helps.
+//! time until no change helps. Whatever the branch, Algorithm 1's own
+//! assignment is a candidate too, so the result is never worse than it by
+//! this objective.
+//!
+//! β's meaning. V is in metres (× P(occ)) as in Algorithm 1, where β weighs
+//! a metre of cost against the unit utility. V² is in square metres, which
+//! would give the same β another meaning at every map size; the squared
+//! cost here is V² / V̄, V̄ the mean cost of the plan's reachable pairs:
+//! still convex (balanced trajectories win), in metres, and equal to
+//! Algorithm 1's β·V at the mean distance.
 
 use std::collections::HashMap;
 
@@ -45,16 +54,18 @@ struct Objective<'a> {
     frontier: &'a [Cell],
     values: &'a [Vec<Option<f64>>],
     beta: f64,
+    /// V̄: the mean cost of the reachable pairs, metres.
+    mean_cost: f64,
     margin: f64,
     pairs: HashMap<(usize, usize, usize), f64>,
 }
 
 impl Objective<'_> {
-    /// 1 − β·V² of robot i at frontier cell t.
+    /// 1 − β·V²/V̄ of robot i at frontier cell t (see the module on V̄).
     fn own(&self, i: usize, t: usize) -> f64 {
         let v = self.values[i][t].unwrap_or(f64::INFINITY);
         let keep = if Some(self.frontier[t]) == current_target(&self.input.robots[i]) { self.margin } else { 0.0 };
-        1.0 - self.beta * v * v + keep
+        1.0 - self.beta * v * v / self.mean_cost + keep
     }
 
     /// P(‖t − u‖) for robot k's sensor at u.
@@ -80,6 +91,32 @@ impl Objective<'_> {
 }
 
 impl BurgardJoint {
+    /// The objective J of `targets` (one per robot of `input`), as the
+    /// search measures it.
+    #[cfg(test)]
+    fn objective_of(&self, input: &PlanningInput<'_>, targets: &[Option<Cell>]) -> f64 {
+        let frontier = input.frontier_cells();
+        let values = self.burgard.cost_values(input, &mut CostCache::new(input.grid), &frontier);
+        let reachable = values.iter().flatten().flatten();
+        let (sum, count) = reachable.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+        let mean_cost = if count > 0 && sum > 0.0 { sum / count as f64 } else { 1.0 };
+        let mut objective = Objective {
+            input,
+            frontier: &frontier,
+            values: &values,
+            beta: self.burgard.beta,
+            mean_cost,
+            margin: self.burgard.switch_margin,
+            pairs: HashMap::new(),
+        };
+        let pairs: Vec<(usize, usize)> = targets
+            .iter()
+            .enumerate()
+            .filter_map(|(i, t)| Some((i, frontier.iter().position(|c| Some(*c) == *t)?)))
+            .collect();
+        objective.total(&pairs)
+    }
+
     fn search_exhaustively(
         objective: &mut Objective<'_>,
         lists: &[(usize, Vec<usize>)],
@@ -166,11 +203,15 @@ impl Policy for BurgardJoint {
         let frontier = input.frontier_cells();
         let values = self.burgard.cost_values(input, costs, &frontier);
         let n = input.robots.len();
+        let reachable = values.iter().flatten().flatten();
+        let (sum, count) = reachable.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+        let mean_cost = if count > 0 && sum > 0.0 { sum / count as f64 } else { 1.0 };
         let mut objective = Objective {
             input,
             frontier: &frontier,
             values: &values,
             beta: self.burgard.beta,
+            mean_cost,
             margin: self.burgard.switch_margin,
             pairs: HashMap::new(),
         };
@@ -188,13 +229,40 @@ impl Policy for BurgardJoint {
         if active == 0 {
             return Plan::of(targets);
         }
+        // Algorithm 1's assignment, as (robot, frontier index): a start for the
+        // search and a candidate of its own.
+        let greedy = self.burgard.assign(input, &frontier, &values);
+        let index_of = |cell: Cell| frontier.iter().position(|&c| c == cell);
+        let mut from_greedy: Vec<(usize, usize)> = Vec::new();
+        for (i, _) in &ranked {
+            match greedy[*i].and_then(|t| index_of(t.cell)).filter(|t| from_greedy.iter().all(|&(_, u)| u != *t)) {
+                Some(t) => from_greedy.push((*i, t)),
+                None => {
+                    from_greedy.clear();
+                    break;
+                }
+            }
+        }
         let all = frontier.len() as f64;
         let everything = (active as f64) * all.ln() <= (self.exact_limit as f64).ln();
         let per_robot = ((self.exact_limit as f64).powf(1.0 / active as f64).floor() as usize).max(1);
-        let best = if everything || per_robot >= self.candidates {
-            let keep = if everything { usize::MAX } else { per_robot };
-            let lists: Vec<(usize, Vec<usize>)> =
-                ranked.iter().map(|(i, r)| (*i, r.iter().copied().take(keep).collect())).collect();
+        // Each robot's candidates: its best ones, and Algorithm 1's target for it.
+        let lists_of = |keep: usize| -> Vec<(usize, Vec<usize>)> {
+            ranked
+                .iter()
+                .map(|(i, r)| {
+                    let mut list: Vec<usize> = r.iter().copied().take(keep).collect();
+                    if let Some(&(_, t)) = from_greedy.iter().find(|(k, _)| k == i)
+                        && !list.contains(&t)
+                    {
+                        list.push(t);
+                    }
+                    (*i, list)
+                })
+                .collect()
+        };
+        let searched = if everything || per_robot >= self.candidates {
+            let lists = lists_of(if everything { usize::MAX } else { per_robot });
             let mut bounds = vec![0.0; lists.len() + 1];
             for d in (0..lists.len()).rev() {
                 let (i, ref l) = lists[d];
@@ -204,26 +272,11 @@ impl Policy for BurgardJoint {
             Self::search_exhaustively(&mut objective, &lists, 0, &mut Vec::new(), 0.0, &mut best, &bounds);
             best
         } else {
-            let width = 4 * self.candidates;
-            let lists: Vec<(usize, Vec<usize>)> =
-                ranked.iter().map(|(i, r)| (*i, r.iter().copied().take(width).collect())).collect();
+            let lists = lists_of(4 * self.candidates);
             // Start from Algorithm 1's choice, then from random ones.
-            let greedy = self.burgard.assign(input, &frontier, &values);
-            let index_of = |cell: Cell| frontier.iter().position(|&c| c == cell);
             let mut starts: Vec<Vec<(usize, usize)>> = Vec::new();
-            let mut from_greedy: Vec<(usize, usize)> = Vec::new();
-            for (i, _) in &lists {
-                if let Some(t) =
-                    greedy[*i].and_then(|t| index_of(t.cell)).filter(|t| from_greedy.iter().all(|&(_, u)| u != *t))
-                {
-                    from_greedy.push((*i, t));
-                    continue;
-                }
-                from_greedy.clear();
-                break;
-            }
             if from_greedy.len() == lists.len() {
-                starts.push(from_greedy);
+                starts.push(from_greedy.clone());
             }
             let mut rng = SplitMix64::new(input.seed);
             for _ in 0..self.restarts {
@@ -242,6 +295,13 @@ impl Policy for BurgardJoint {
                 .into_iter()
                 .map(|s| Self::hill_climb(&mut objective, &lists, s))
                 .fold((f64::NEG_INFINITY, Vec::new()), |best, c| if c.0 > best.0 { c } else { best })
+        };
+        // Never worse than Algorithm 1 by this objective.
+        let best = if from_greedy.len() == active {
+            let greedy_total = objective.total(&from_greedy);
+            if greedy_total > searched.0 || searched.1.len() < active { (greedy_total, from_greedy) } else { searched }
+        } else {
+            searched
         };
         // Fewer frontier cells than robots: the rest fall back on Algorithm 1.
         let fallback = if best.1.len() < active { Some(self.burgard.assign(input, &frontier, &values)) } else { None };
@@ -265,7 +325,7 @@ impl Policy for BurgardJoint {
 mod tests {
     use super::*;
     use crate::grid::testing::grid_from_picture;
-    use crate::policy::testing::{plan_targets, robot};
+    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
 
     fn joint(exact_limit: u64) -> BurgardJoint {
         BurgardJoint {
@@ -297,5 +357,76 @@ mod tests {
             let algorithm_2 = plan_targets(&joint(limit), &grid, &robots);
             assert_eq!(algorithm_2, vec![Some(a), Some(b)], "exact_limit {limit}");
         }
+        // Closest frontier sends both to the near room; greedy is Algorithm 1 here.
+        assert_eq!(plan_with_defaults("nearest", &grid, &robots), vec![Some(a), Some(a)]);
+        assert_eq!(plan_with_defaults("greedy", &grid, &robots), vec![Some(b), Some(a)]);
+    }
+
+    /// Fig. 7 with a third room further on: 3 frontier cells, 6 joint
+    /// assignments. A limit of 8 is too small to search them all but lets
+    /// each robot keep its 2 best candidates (4 combinations), the pruned
+    /// exhaustive branch; it still finds the balanced assignment.
+    #[test]
+    fn the_pruned_search_finds_the_balanced_assignment_too() {
+        let grid = grid_from_picture(&[
+            "###########?########?#########?#", //
+            "#..............................#", //
+            "################################", //
+        ]);
+        let (a, b) = (Cell::new(11, 1), Cell::new(20, 1));
+        let robots = [robot(1, Cell::new(1, 1), 3.0), robot(2, Cell::new(10, 1), 3.0)];
+        assert_eq!(plan_targets(&joint(1).burgard, &grid, &robots), vec![Some(b), Some(a)]);
+        assert_eq!(plan_targets(&joint(8), &grid, &robots), vec![Some(a), Some(b)]);
+    }
+
+    /// Whatever branch the search takes (exhaustive, pruned or randomized),
+    /// its objective is never below Algorithm 1's assignment's.
+    #[test]
+    fn the_joint_search_is_never_worse_than_algorithm_1() {
+        use proptest::prelude::*;
+        let mut runner = proptest::test_runner::TestRunner::new(crate::testing::seeded_proptest(96));
+        let instance = (any::<u64>(), 2usize..6, 0u32..6);
+        runner
+            .run(&instance, |(seed, n, limit)| {
+                let mut rng = SplitMix64::new(seed);
+                // A 24 × 10 room, its upper rows unknown, random inner walls.
+                let rows: Vec<String> = (0..10)
+                    .map(|r| {
+                        (0..24)
+                            .map(|x| match (r, x) {
+                                (0 | 9, _) | (_, 0 | 23) => '#',
+                                (1..=3, _) => '?',
+                                _ if rng.below(9) == 0 => '#',
+                                _ => '.',
+                            })
+                            .collect()
+                    })
+                    .collect();
+                let picture: Vec<&str> = rows.iter().map(String::as_str).collect();
+                let grid = grid_from_picture(&picture);
+                let free: Vec<Cell> = grid.frame().bounds().cells().filter(|&c| grid.value(c) == 10).collect();
+                prop_assume!(free.len() > n);
+                let robots: Vec<_> =
+                    (0..n).map(|k| robot(k as u64, free[rng.below(free.len() as u64) as usize], 3.0)).collect();
+                let policy = BurgardJoint { exact_limit: 10u64.pow(limit), ..joint(1) };
+                let algorithm_1 = plan_targets(&policy.burgard, &grid, &robots);
+                let algorithm_2 = plan_targets(&policy, &grid, &robots);
+                let frontier = crate::frontier::FrontierMap::detect(&grid);
+                let clusters = crate::frontier::clusters(&frontier, 1);
+                let bids = vec![Vec::new(); robots.len()];
+                let input = PlanningInput {
+                    grid: &grid,
+                    clusters: &clusters,
+                    robots: &robots,
+                    threads: 1,
+                    bids: &bids,
+                    seed: 7,
+                    reserved: &[],
+                };
+                let (one, two) = (policy.objective_of(&input, &algorithm_1), policy.objective_of(&input, &algorithm_2));
+                prop_assert!(two >= one - 1e-9, "Algorithm 2 {two} below Algorithm 1 {one}");
+                Ok(())
+            })
+            .unwrap();
     }
 }

@@ -19,10 +19,18 @@
 //!   highest at the robot and falling with distance, normalized to [0, 1];
 //!   with several robots the strongest one counts.
 //!
-//! A robot travels to the frontier it chose before choosing again (with
-//! `commit`, the default), as the paper's robots navigate to their chosen
-//! frontier: re-deciding on the way makes robots turn back, since the
-//! distance factor repels them from frontiers that came close.
+//! When a robot chooses again: the paper's robot "decides to explore" a
+//! frontier and navigates to it; it evaluates the utility again when it
+//! meets another robot (§3.3) or when there is nothing left there (§4,
+//! Fig. 11). With `commit` (the default) a robot therefore keeps its
+//! frontier cell while that cell is still frontier, and chooses again as
+//! soon as it is explored, reached or unreachable; here every robot always
+//! sees every other, so meetings add no decision points. With `commit` off
+//! it chooses again at every replanning, which the paper does not do: Eq.
+//! 4's factor peaks at a distance, so a robot approaching its choice finds
+//! it less attractive and turns back (`commit = 0` can livelock). Where
+//! utilities tie, the first frontier cell in row order wins (the paper is
+//! silent on ties).
 //!
 //! The paper adds the three factors; Inf (a sum over cells) and Dist (a
 //! product of powers below one) live on different scales, so both are
@@ -30,6 +38,8 @@
 //! is. The paper's robots decide alone and meet to merge maps; here all
 //! poses are known to the executive, so every robot sees every other.
 
+#[cfg(test)]
+use super::{CurrentTask, RobotView};
 use super::{Plan, PlanningInput, Policy, Target, current_target, free_space_cost_maps};
 use crate::cost::CostCache;
 use crate::grid::{Cell, CellRect, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
@@ -49,9 +59,8 @@ pub struct Colares {
     pub window: usize,
     /// Hysteresis: a robot's current target scores this much more.
     pub switch_margin: f64,
-    /// Whether a robot keeps its target until it gets there, as the paper's
-    /// robots navigate to the frontier they chose, even once the target
-    /// stops being a frontier.
+    /// Whether a robot keeps its frontier cell while it is still frontier,
+    /// as the paper's robots navigate to the frontier they chose.
     pub commit: bool,
 }
 
@@ -135,7 +144,9 @@ impl Policy for Colares {
         let targets = (0..input.robots.len())
             .map(|i| {
                 let robot = &input.robots[i];
-                let committed = robot.current.filter(|c| self.commit && c.target != robot.cell);
+                let still_frontier = |c: Cell| frame.contains(c) && !in_window[frame.index(c)].is_nan();
+                let committed =
+                    robot.current.filter(|c| self.commit && c.target != robot.cell && still_frontier(c.target));
                 if let Some((current, cost)) =
                     committed.and_then(|c| robot.cost_to(&maps[i], c.target).map(|cost| (c, cost)))
                 {
@@ -173,7 +184,7 @@ impl Policy for Colares {
 mod tests {
     use super::*;
     use crate::grid::testing::grid_from_picture;
-    use crate::policy::testing::{plan_targets, robot};
+    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
 
     /// Colares & Chaimowicz 2016, Fig. 2: (α, β) = (4, 9) favours near
     /// frontiers, (9, 4) far ones; each curve rises to a single peak at
@@ -233,5 +244,66 @@ mod tests {
         // Peaks at w = 1/9 and 8/9 of the 21 cells.
         assert!((1..=4).contains(&near.x), "{near:?}");
         assert!((17..=20).contains(&far.x), "{far:?}");
+    }
+
+    fn heading_for(mut robot: RobotView, target: Cell) -> RobotView {
+        robot.current = Some(CurrentTask { target, gain_region: None });
+        robot
+    }
+
+    /// With its default settings ((α, β) = (5, 9), commitment as in §3–4) a
+    /// robot takes a frontier cell a third of the way along, where Eq. 4
+    /// peaks, not the closest one; it keeps the cell it chose while that is
+    /// still frontier, and chooses again once it has been explored.
+    #[test]
+    fn with_its_defaults_a_robot_keeps_its_frontier_until_it_is_explored() {
+        // Picture rows run from the top (y = 3) down; the frontier is y = 2.
+        let grid = grid_from_picture(&[
+            "??????????????????????", //
+            "......................", //
+            "......................", //
+            "######################", //
+        ]);
+        let robots = [robot(0, Cell::new(0, 1), 3.0)];
+        let chosen = plan_with_defaults("colares", &grid, &robots)[0].unwrap();
+        assert!((5..=9).contains(&chosen.x) && chosen.y == 2, "{chosen:?}");
+        let nearest = plan_with_defaults("nearest", &grid, &robots)[0].unwrap();
+        assert!(nearest.x <= 1, "{nearest:?}");
+
+        // Heading for (15, 2), still frontier: it keeps it.
+        let heading = [heading_for(robots[0].clone(), Cell::new(15, 2))];
+        assert_eq!(plan_with_defaults("colares", &grid, &heading), vec![Some(Cell::new(15, 2))]);
+        // The unknown above (15, 2) has been seen: it chooses again.
+        let seen = grid_from_picture(&[
+            "?????????????.....????", //
+            "......................", //
+            "......................", //
+            "######################", //
+        ]);
+        let again = plan_with_defaults("colares", &seen, &heading)[0].unwrap();
+        assert!((5..=9).contains(&again.x), "{again:?}");
+    }
+
+    /// §3.3's coordination term: another robot's negative wavefront makes
+    /// cells near it less attractive. A robot in the middle of a long
+    /// frontier has two equal peaks of Eq. 4, left and right, and takes the
+    /// left one (ties to the first cell); with another robot standing there,
+    /// it takes the right one. Closest frontier ignores the other robot.
+    #[test]
+    fn another_robot_pushes_the_choice_to_the_other_side() {
+        let grid = grid_from_picture(&[
+            "???????????????????????????????????????????", //
+            "...........................................", //
+            "...........................................", //
+            "###########################################", //
+        ]);
+        let alone = [robot(0, Cell::new(21, 1), 3.0)];
+        let chosen = plan_with_defaults("colares", &grid, &alone)[0].unwrap();
+        assert!(chosen.x < 21, "{chosen:?}");
+        let pair = [robot(0, Cell::new(21, 1), 3.0), robot(1, Cell::new(chosen.x, 1), 3.0)];
+        let pushed = plan_with_defaults("colares", &grid, &pair)[0].unwrap();
+        assert!(pushed.x > 21, "alone {chosen:?}, with a robot below it: {pushed:?}");
+        let nearest = [plan_with_defaults("nearest", &grid, &alone)[0], plan_with_defaults("nearest", &grid, &pair)[0]];
+        assert_eq!(nearest, [Some(Cell::new(21, 2)); 2]);
     }
 }

@@ -69,7 +69,7 @@ mod tests {
     use super::*;
     use crate::grid::Cell;
     use crate::grid::testing::grid_from_picture;
-    use crate::policy::testing::{plan_targets, robot};
+    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
 
     #[test]
     fn the_cheapest_pair_goes_first_and_frontiers_are_reused_when_they_run_out() {
@@ -80,11 +80,33 @@ mod tests {
             "?............?", //
             "##############", //
         ]);
-        let robots = [robot(0, Cell::new(3, 1), 5.0), robot(1, Cell::new(4, 1), 5.0), robot(2, Cell::new(10, 1), 5.0)];
-        let targets = plan_targets(&Greedy::default(), &grid, &robots);
-        // Robots 0 and 2 are each two cells from an end; robot 0 goes first on
-        // the tie (left), robot 2 then takes the right end, and robot 1 gets
-        // the left end again once both were taken.
-        assert_eq!(targets, vec![Some(Cell::new(1, 1)), Some(Cell::new(1, 1)), Some(Cell::new(12, 1))]);
+        let (left, right) = (Some(Cell::new(1, 1)), Some(Cell::new(12, 1)));
+        let robots = [robot(0, Cell::new(3, 1), 5.0), robot(1, Cell::new(4, 1), 5.0), robot(2, Cell::new(5, 1), 5.0)];
+        // Robot 0 and the left end are the cheapest pair (2); robot 2 and the
+        // right end the cheapest left (7); robot 1 then reuses the left end.
+        assert_eq!(plan_targets(&Greedy::default(), &grid, &robots), vec![left, left, right]);
+        // Every robot is nearer the left end: closest frontier sends all three.
+        assert_eq!(plan_with_defaults("nearest", &grid, &robots), vec![left, left, left]);
+    }
+
+    /// Greedy is myopic: the cheapest pair first even when the team pays for
+    /// it. Robot 1 sits in a branch: 2.4 from the left end, 11.4 from the
+    /// right; robot 0 is 2 and 9 away. Greedy gives robot 0 the left end and
+    /// robot 1 the far right (13.4 in all); the optimal assignment swaps them
+    /// (11.4); closest frontier sends both left.
+    #[test]
+    fn the_cheapest_pair_wins_even_when_the_total_is_worse() {
+        let grid = grid_from_picture(&[
+            "##############", //
+            "?............?", //
+            "##.###########", //
+            "##.###########", //
+            "##############", //
+        ]);
+        let (left, right) = (Some(Cell::new(1, 3)), Some(Cell::new(12, 3)));
+        let robots = [robot(0, Cell::new(3, 3), 5.0), robot(1, Cell::new(2, 1), 5.0)];
+        assert_eq!(plan_targets(&Greedy::default(), &grid, &robots), vec![left, right]);
+        assert_eq!(plan_with_defaults("nearest", &grid, &robots), vec![left, left]);
+        assert_eq!(plan_with_defaults("hungarian", &grid, &robots), vec![right, left]);
     }
 }

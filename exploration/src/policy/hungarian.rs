@@ -68,7 +68,7 @@ mod tests {
     use super::*;
     use crate::grid::Cell;
     use crate::grid::testing::grid_from_picture;
-    use crate::policy::testing::{plan_targets, robot};
+    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
 
     #[test]
     fn the_total_path_cost_is_minimal() {
@@ -81,6 +81,25 @@ mod tests {
         let targets = plan_targets(&Hungarian::default(), &grid, &robots);
         // Sums: (0→right 9, 1→left 3) = 12 against (0→left 4, 1→right 10) = 14.
         assert_eq!(targets, vec![Some(Cell::new(14, 1)), Some(Cell::new(1, 1))]);
+    }
+
+    /// The same branch as greedy's test: the least total cost sends robot 0
+    /// right and robot 1 (in the branch) left, 11.4 against greedy's 13.4;
+    /// greedy and closest frontier answer otherwise.
+    #[test]
+    fn the_least_total_beats_the_cheapest_pair_first() {
+        let grid = grid_from_picture(&[
+            "##############", //
+            "?............?", //
+            "##.###########", //
+            "##.###########", //
+            "##############", //
+        ]);
+        let (left, right) = (Some(Cell::new(1, 3)), Some(Cell::new(12, 3)));
+        let robots = [robot(0, Cell::new(3, 3), 5.0), robot(1, Cell::new(2, 1), 5.0)];
+        assert_eq!(plan_targets(&Hungarian::default(), &grid, &robots), vec![right, left]);
+        assert_eq!(plan_with_defaults("greedy", &grid, &robots), vec![left, right]);
+        assert_eq!(plan_with_defaults("nearest", &grid, &robots), vec![left, left]);
     }
 
     #[test]

@@ -4,7 +4,11 @@
 //! i's wavefront distance to frontier j on the configuration space (obstacles
 //! inflated by the robot's radius, §IV-B). Robot i's position towards j is
 //! P_ij = #{k ≠ i : C_kj < C_ij}; it takes j = argmin_j P_ij, ties broken by
-//! the least C_ij. The paper propagates one wavefront from each frontier so
+//! the least C_ij. Only strictly closer robots count, as in the paper, so
+//! robots on one cell rank alike everywhere and move as one until something
+//! separates them; that is why the simulator starts teams on distinct cells
+//! (no tie rule by id changes this: it shifts a co-located robot's position
+//! by the same amount at every frontier). The paper propagates one wavefront from each frontier so
 //! that each robot can compute every C_kj alone; the central executive
 //! propagates one from each robot instead, which gives the same C_ij (paths
 //! on the grid are reversible) with min(robots, frontiers) fewer maps in
@@ -66,7 +70,7 @@ mod tests {
     use crate::grid::Cell;
     use crate::grid::testing::grid_from_picture;
     use crate::policy::Nearest;
-    use crate::policy::testing::{plan_targets, robot};
+    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
 
     /// Bautin et al. 2011, Fig. 6: a group of robots beside one frontier,
     /// another frontier behind them. Closest frontier sends all of them to
@@ -90,5 +94,26 @@ mod tests {
         assert_eq!((left, right), (2, 2), "{minpos:?}");
         // The two nearer the left go left.
         assert!(minpos[0].is_some_and(|c| c.x == 1) && minpos[1].is_some_and(|c| c.x == 1), "{minpos:?}");
+    }
+
+    /// Robots on one cell rank alike (Eq. for P_ij counts only strictly
+    /// closer robots), so they go where a third robot is not ahead of them:
+    /// here robot 0 is closer to the left frontier, the pair on (6, 1) is
+    /// second there and first on the right, so both go right. Closest
+    /// frontier sends all three left.
+    #[test]
+    fn robots_on_one_cell_go_where_nobody_is_ahead_of_them() {
+        let grid = grid_from_picture(&[
+            "######################", //
+            "?....................?", //
+            "?....................?", //
+            "######################", //
+        ]);
+        let robots = [robot(0, Cell::new(3, 1), 3.0), robot(1, Cell::new(6, 1), 3.0), robot(2, Cell::new(6, 1), 3.0)];
+        let targets = plan_with_defaults("minpos", &grid, &robots);
+        let xs: Vec<_> = targets.iter().map(|t| t.map(|c| c.x)).collect();
+        assert_eq!(xs, [Some(1), Some(20), Some(20)], "{targets:?}");
+        let nearest = plan_with_defaults("nearest", &grid, &robots);
+        assert!(nearest.iter().all(|t| t.is_some_and(|c| c.x == 1)), "{nearest:?}");
     }
 }

@@ -350,6 +350,13 @@ pub trait Policy: Send + Sync + std::fmt::Debug {
 
     /// Chooses targets for all robots.
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan;
+
+    /// Whether robots bid (Simmons et al. 2000): the executive then passes a
+    /// robot's bids only when they are new or the robot is idle, and plans
+    /// again when bids arrive.
+    fn uses_bids(&self) -> bool {
+        false
+    }
 }
 
 #[cfg(test)]
@@ -371,6 +378,13 @@ pub(crate) mod testing {
             current: None,
             excluded: Vec::new(),
         }
+    }
+
+    /// Runs the named policy with its default parameters, as a mission that
+    /// selects it without overrides would.
+    pub fn plan_with_defaults(name: &str, grid: &OccupancyGrid, robots: &[RobotView]) -> Vec<Option<Cell>> {
+        let policy = PolicyConfig::default_for(name).expect("a catalogued policy").build();
+        plan_targets(policy.as_ref(), grid, robots)
     }
 
     /// Runs a policy on a grid and returns each robot's target cell.

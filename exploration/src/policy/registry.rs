@@ -149,8 +149,8 @@ pub fn catalogue() -> &'static [PolicyDescriptor] {
                     max: 1_000_000.0,
                 },
                 ParamSpec {
-                    name: "cost_weight",
-                    description: "cells of gain one cell of path is worth in u = (1 - d) * I - c",
+                    name: "gain_scale",
+                    description: "u = gain_scale * (1 - d) * I - c, both in metres: I, the unknown area in reach, as metres of driving that reveal it (area / sensor width 2r), c the path; 1 counts a metre of revealing driving as a metre of path",
                     default: 1.0,
                     min: 0.0,
                     max: 1_000.0,
@@ -166,7 +166,7 @@ pub fn catalogue() -> &'static [PolicyDescriptor] {
         },
         PolicyDescriptor {
             name: super::minpos::NAME,
-            description: "Bautin et al. 2011, Algorithm 3 (MinPos): each robot takes the frontier for which the fewest robots are closer, ties by path cost",
+            description: "Bautin et al. 2011, Algorithm 3 (MinPos): each robot takes the frontier for which the fewest robots are strictly closer, ties by path cost",
             params: &[MIN_FRONTIER_SIZE, SWITCH_METRES],
         },
         PolicyDescriptor {
@@ -232,7 +232,7 @@ pub fn catalogue() -> &'static [PolicyDescriptor] {
                 },
                 ParamSpec {
                     name: "commit",
-                    description: "1: a robot keeps its target until it gets there (the paper's robots navigate to their chosen frontier); 0: it may switch at any replanning",
+                    description: "1, the paper's: a robot keeps the frontier cell it chose while that cell is still frontier; 0: it chooses again at every replanning (not in the paper; can livelock, as Eq. 4 peaks at a distance)",
                     default: 1.0,
                     min: 0.0,
                     max: 1.0,
@@ -381,7 +381,7 @@ impl PolicyConfig {
             super::simmons::NAME => Box::new(Simmons {
                 hysteresis_ratio: p("hysteresis_ratio"),
                 min_gain: p("min_gain"),
-                cost_weight: p("cost_weight"),
+                gain_scale: p("gain_scale"),
                 spacing_m: p("spacing_m"),
             }),
             super::minpos::NAME => Box::new(MinPos { switch_margin: p("switch_margin") }),

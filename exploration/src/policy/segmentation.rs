@@ -148,7 +148,7 @@ mod tests {
     use crate::grid::Cell;
     use crate::grid::testing::grid_from_picture;
     use crate::policy::Greedy;
-    use crate::policy::testing::{plan_targets, robot};
+    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
 
     /// Wurm et al. 2008, §V: two robots in a corridor, two rooms off it. Room
     /// A has two frontiers (a pillar splits its unexplored part), so the
@@ -175,6 +175,8 @@ mod tests {
         let robots = [robot(0, Cell::new(3, 2), 3.0), robot(1, Cell::new(5, 2), 3.0)];
         let greedy = plan_targets(&Greedy::default(), &grid, &robots);
         assert!(greedy.iter().all(|t| t.is_some_and(in_room_a)), "greedy: {greedy:?}");
+        let nearest = plan_with_defaults("nearest", &grid, &robots);
+        assert!(nearest.iter().all(|t| t.is_some_and(in_room_a)), "nearest: {nearest:?}");
         let policy =
             SegmentationPolicy { switch_margin: 0.0, inside_discount: 0.5, min_drop_m: 0.5, min_segment_m2: 1.0 };
         let targets = plan_targets(&policy, &grid, &robots);

@@ -19,8 +19,19 @@
 //! on until every robot has a task or no bid's discounted gain reaches the
 //! minimum threshold (those robots stay idle). Hysteresis: a frontier cell
 //! inside the gain region of the robot's current task has its gain divided
-//! by the hysteresis ratio (usually 0.85). c_j is the path cost in cells
-//! times `cost_weight`, so that gain (cells) and cost are commensurate.
+//! by the hysteresis ratio (usually 0.85). Only robots that are idle or have
+//! sent new bids are tasked (§4.2: "leaving the currently active ones to
+//! continue"); the regions of those that continue count as assigned. A bid
+//! whose target is no longer a frontier cell of the current map is dropped.
+//!
+//! Units. The paper counts I_j in unknown cells and c_j as a path cost
+//! without a scale between them; counted in cells, the gain of an open room
+//! (thousands of cells) swamps any path (tens of cells), and a robot crosses
+//! the building for the largest unknown area it can see. Here both are in
+//! metres of travel: a robot driving d metres sweeps a strip as wide as its
+//! sensor, 2r, so revealing A m² is worth A / 2r metres of driving. I_j is
+//! converted so (times `gain_scale`, a calibration the paper does not give;
+//! see docs/results.md) and c_j is the path length in metres.
 
 use super::{Bid, Capabilities, Plan, PlanningInput, Policy, Target, free_space_cost_maps};
 use crate::cost::{CostCache, CostMap};
@@ -35,8 +46,9 @@ pub struct Simmons {
     pub hysteresis_ratio: f64,
     /// Robots whose best discounted gain is below this (cells) stay idle.
     pub min_gain: f64,
-    /// Cells of gain one cell of path is worth.
-    pub cost_weight: f64,
+    /// How much a metre of revealing driving (area / sensor width) is worth
+    /// against a metre of path: 1 counts both alike.
+    pub gain_scale: f64,
     /// Bid frontier cells are at least this far apart, metres.
     pub spacing_m: f64,
 }
@@ -181,9 +193,11 @@ impl Policy for Simmons {
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let grid = input.grid;
         let resolution = grid.frame().resolution;
-        let needs_bids = input.robots.iter().enumerate().any(|(i, _)| input.bids.get(i).is_none_or(Vec::is_empty));
-        // Bids for robots that sent none: computed here from the fused map.
-        // Candidate cells and gains do not depend on the robot, only costs do.
+        // §4.2: a robot with a task and no new bids continues.
+        let continues = |i: usize| input.bids.get(i).is_none_or(Vec::is_empty) && input.robots[i].current.is_some();
+        let needs_bids = (0..input.robots.len()).any(|i| input.bids.get(i).is_none_or(Vec::is_empty) && !continues(i));
+        // Bids for idle robots that sent none: computed here from the fused
+        // map. Candidate cells and gains do not depend on the robot, only costs do.
         let computed: Vec<Vec<Bid>> = if needs_bids {
             let frontier = spaced(&input.frontier_cells(), self.spacing_m / resolution);
             let maps = free_space_cost_maps(input, costs);
@@ -194,7 +208,7 @@ impl Policy for Simmons {
                 .zip(&maps)
                 .enumerate()
                 .map(|(i, (robot, map))| {
-                    if input.bids.get(i).is_some_and(|b| !b.is_empty()) {
+                    if input.bids.get(i).is_some_and(|b| !b.is_empty()) || continues(i) {
                         return Vec::new();
                     }
                     let range = robot.capabilities.sensor_range_m / resolution;
@@ -220,25 +234,37 @@ impl Policy for Simmons {
             })
             .collect();
         let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
+        let frame = grid.frame();
         // Regions come from robots: only the part on the map counts, so the
         // coverage below is never larger than the grid.
+        let continuing = (0..input.robots.len()).filter(|&i| continues(i));
+        let kept_regions = continuing.clone().filter_map(|i| input.robots[i].current.and_then(|c| c.gain_region));
         let Some(bounds) = bids
             .iter()
-            .flat_map(|b| b.iter().filter_map(|b| grid.frame().clip(&b.gain_region)))
+            .flat_map(|b| b.iter().map(|b| b.gain_region))
+            .chain(kept_regions.clone())
+            .filter_map(|r| frame.clip(&r))
             .reduce(|a, b| a.union(&b))
         else {
-            return Plan::of(targets);
+            return Plan::of(self.continued(input, targets));
         };
         let mut assigned = Coverage::new(bounds);
+        for region in kept_regions {
+            assigned.add(&region);
+        }
+        targets = self.continued(input, targets);
         loop {
             let mut best: Option<(f64, usize, usize)> = None;
             for (i, robot_bids) in bids.iter().enumerate() {
                 if targets[i].is_some() {
                     continue;
                 }
-                let current_region = input.robots[i].current.and_then(|c| c.gain_region);
+                let robot = &input.robots[i];
+                let current_region = robot.current.and_then(|c| c.gain_region);
+                let metres_per_cell = resolution * resolution / (2.0 * robot.capabilities.sensor_range_m);
                 for (b, bid) in robot_bids.iter().enumerate() {
-                    if !input.robots[i].may_target(bid.target) {
+                    // A bid on what is no longer frontier is stale.
+                    if !robot.may_target(bid.target) || !crate::frontier::is_frontier(grid, bid.target) {
                         continue;
                     }
                     let mut gain = (1.0 - assigned.overlap(&bid.gain_region)) * bid.information_gain;
@@ -248,7 +274,8 @@ impl Policy for Simmons {
                     if gain < self.min_gain || gain <= 0.0 {
                         continue;
                     }
-                    let utility = gain - self.cost_weight * bid.path_cost_m / resolution;
+                    let utility = self.gain_scale * gain * metres_per_cell - bid.path_cost_m;
+                    // Ties: the lower robot, then its earlier bid (the paper is silent).
                     if best.is_none_or(|(u, ..)| utility > u) {
                         best = Some((utility, i, b));
                     }
@@ -266,6 +293,29 @@ impl Policy for Simmons {
         }
         Plan::of(targets)
     }
+
+    fn uses_bids(&self) -> bool {
+        true
+    }
+}
+
+impl Simmons {
+    /// `targets` with the robots that continue (a task, no new bids) kept on it.
+    fn continued(&self, input: &PlanningInput<'_>, mut targets: Vec<Option<Target>>) -> Vec<Option<Target>> {
+        for (i, robot) in input.robots.iter().enumerate() {
+            if input.bids.get(i).is_none_or(Vec::is_empty)
+                && let Some(current) = robot.current
+            {
+                targets[i] = Some(Target {
+                    cell: current.target,
+                    utility: 0.0,
+                    path_cost: 0.0,
+                    gain_region: current.gain_region,
+                });
+            }
+        }
+        targets
+    }
 }
 
 #[cfg(test)]
@@ -273,11 +323,11 @@ mod tests {
     use super::*;
     use crate::frontier::{FrontierMap, clusters};
     use crate::grid::testing::grid_from_picture;
-    use crate::policy::testing::robot;
+    use crate::policy::testing::{plan_with_defaults, robot};
     use crate::policy::{CurrentTask, RobotView};
 
     fn simmons() -> Simmons {
-        Simmons { hysteresis_ratio: 0.85, min_gain: 1.0, cost_weight: 1.0, spacing_m: 0.0 }
+        Simmons { hysteresis_ratio: 0.85, min_gain: 1.0, gain_scale: 1.0, spacing_m: 0.0 }
     }
 
     fn plan(policy: &Simmons, grid: &OccupancyGrid, robots: &[RobotView]) -> Vec<Option<Target>> {
@@ -341,11 +391,11 @@ mod tests {
         ]);
         let at = Cell::new(3, 1);
         let mut r = robot(0, at, 10.0);
-        let fresh = plan(&Simmons { cost_weight: 0.0, ..simmons() }, &grid, std::slice::from_ref(&r));
+        let fresh = plan(&Simmons { gain_scale: 1e6, ..simmons() }, &grid, std::slice::from_ref(&r));
         let elsewhere = fresh[0].unwrap().cell;
         assert!(elsewhere.x > 6, "without hysteresis the bigger region wins: {elsewhere:?}");
         r.current = Some(CurrentTask { target: Cell::new(3, 2), gain_region: Some(CellRect::new(1, 2, 5, 3)) });
-        let kept = plan(&Simmons { cost_weight: 0.0, ..simmons() }, &grid, &[r]);
+        let kept = plan(&Simmons { gain_scale: 1e6, ..simmons() }, &grid, &[r]);
         assert!(kept[0].unwrap().cell.x < 6, "hysteresis keeps the room: {:?}", kept[0]);
     }
 
@@ -363,6 +413,9 @@ mod tests {
         let robots = [robot(0, Cell::new(1, 1), 5.0), robot(1, Cell::new(3, 1), 5.0)];
         let targets = plan(&simmons(), &grid, &robots);
         assert_eq!(targets.iter().filter(|t| t.is_some()).count(), 1, "{targets:?}");
+        assert_eq!(plan_with_defaults("simmons", &grid, &robots).iter().filter(|t| t.is_some()).count(), 1);
+        // Closest frontier sends both.
+        assert!(plan_with_defaults("nearest", &grid, &robots).iter().all(Option::is_some));
     }
 
     /// A robot's bid region is its own claim: one spanning the whole `i32`

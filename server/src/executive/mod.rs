@@ -465,6 +465,7 @@ impl Executive {
             Changeset { bids: Some((robot_id, bids.clone())), at: Some(Timestamp::now()), ..Changeset::default() };
         self.store.commit(changes).await?;
         mission.set_bids(robot_id, &bids);
+        mission.mark_bids_fresh(robot_id);
         mission.heard_from(robot_id, self.settings.clock.now());
         self.planner.after_change(&handle, &mut mission).await;
         Ok((bids.len(), mission.assignment(robot_id)?))

@@ -94,6 +94,8 @@ pub(crate) struct Mission {
     open_tasks: BTreeMap<TaskId, TaskRecord>,
     /// Each robot's latest bids, in cells.
     bids: BTreeMap<RobotId, Vec<PolicyBid>>,
+    /// Robots whose bids arrived since they were last planned for.
+    fresh_bids: std::collections::BTreeSet<RobotId>,
     last_replan: Instant,
     frontier_at_replan: usize,
     frontier_churn: usize,
@@ -149,6 +151,7 @@ impl Mission {
             names: HashMap::new(),
             open_tasks: open_tasks.into_iter().map(|t| (t.id, t)).collect(),
             bids: BTreeMap::new(),
+            fresh_bids: std::collections::BTreeSet::new(),
             last_replan: now,
             frontier_churn: 0,
             layer_changes: 0,
@@ -352,9 +355,15 @@ impl Mission {
             );
         }
         self.bids.insert(robot, converted);
-        if self.policy.name() == "simmons" {
+        if self.policy.uses_bids() {
             self.demand_replan(format!("robot {robot} submitted bids"));
         }
+    }
+
+    /// The robot's bids arrived just now (not restored): the next plan takes
+    /// them even if the robot has a task.
+    pub(crate) fn mark_bids_fresh(&mut self, robot: RobotId) {
+        self.fresh_bids.insert(robot);
     }
 
     /// Checks a policy change and describes it.

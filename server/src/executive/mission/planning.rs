@@ -178,8 +178,10 @@ impl PlanningJob {
 }
 
 /// The state a plan was made on (see [`Mission::plan_still_fits`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub(crate) struct PlanBasis {
+    /// The robots whose new bids the plan took.
+    fresh_bids: Vec<RobotId>,
     structure: u64,
     demands: u64,
     frontier_churn: usize,
@@ -292,7 +294,13 @@ impl Mission {
                 .collect()
         };
         let allowed = |cell: Cell| !forbidden.iter().any(|r| r.contains(cell));
+        // Simmons et al. 2000, §4.2: a robot's bids count when they are new
+        // or it is idle; a robot with a task and no new bids continues.
         let bids_of = |id: &RobotId| {
+            let busy = self.robots[id].record.current_task.is_some();
+            if busy && !self.fresh_bids.contains(id) {
+                return Vec::new();
+            }
             let mut bids = self.bids.get(id).cloned().unwrap_or_default();
             bids.retain(|b| allowed(b.target));
             bids
@@ -424,7 +432,11 @@ impl Mission {
                 // Burgard et al. 2005 stop here; a fleet also wants its robots back.
                 let home = self.record.spec.lifecycle.rendezvous.unwrap_or(robot.home);
                 let at_home = (robot.pose.position - home).norm() <= HOME_TOLERANCE_M.max(2.0 * frame.resolution);
-                (!at_home && !slot.home_failed).then(|| TaskDraft {
+                // A robot already on its way home finishes the trip and says
+                // so, even from within the tolerance (another robot may stand
+                // between it and its cell for a while).
+                let going_home = current.is_some_and(|t| t.kind == TaskKind::Home);
+                ((!at_home || going_home) && !slot.home_failed).then(|| TaskDraft {
                     kind: TaskKind::Home,
                     target: home,
                     created_by: BY_EXECUTIVE.to_owned(),
@@ -548,11 +560,15 @@ impl Mission {
         if demands_before_commit == basis.demands {
             self.pending_replan = None;
         }
+        for robot in &basis.fresh_bids {
+            self.fresh_bids.remove(robot);
+        }
     }
 
     /// What a plan is made on, to tell at commit whether it still fits.
     pub(crate) fn plan_basis(&self) -> PlanBasis {
         PlanBasis {
+            fresh_bids: self.fresh_bids.iter().copied().collect(),
             structure: self.structure,
             demands: self.demands,
             frontier_churn: self.frontier_churn,
