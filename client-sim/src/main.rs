@@ -37,6 +37,18 @@ enum Command {
     /// rates, open-loop, and reports throughput, latency, triggers, the
     /// executive's CPU and memory, and its capacity against an empty call.
     Load(LoadArgs),
+    /// Plots latency against offered load from `load --json` reports.
+    LoadPlot(LoadPlotArgs),
+}
+
+#[derive(Debug, Args)]
+struct LoadPlotArgs {
+    /// The plot's path without extension; a PNG and an SVG are written.
+    #[arg(long)]
+    out: PathBuf,
+    /// Reports of `load --json`, one per offered load.
+    #[arg(required = true)]
+    reports: Vec<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -226,7 +238,7 @@ struct RunArgs {
     /// Start: `auto` (roomiest cell), `random` (seeded), or `x,y` in metres.
     #[arg(long, default_value = "auto")]
     start: String,
-    /// `together` (all at the start) or `spread` (each at a random cell).
+    /// `together` (packed on distinct free cells around the start) or `spread` (each at a random cell).
     #[arg(long, default_value = "together")]
     layout: String,
     /// Probability that a move near another robot happens (Burgard et al.
@@ -333,6 +345,7 @@ async fn main() -> anyhow::Result<()> {
         Command::Experiment(args) => experiment(args).await,
         Command::Report(args) => report(args),
         Command::Load(args) => load(args).await,
+        Command::LoadPlot(args) => load_plot(args),
     }
 }
 
@@ -369,6 +382,21 @@ async fn load(args: LoadArgs) -> anyhow::Result<()> {
         std::fs::write(&path, &json).with_context(|| format!("cannot write {}", path.display()))?;
     }
     println!("{json}");
+    Ok(())
+}
+
+fn load_plot(args: LoadPlotArgs) -> anyhow::Result<()> {
+    let reports = args
+        .reports
+        .iter()
+        .map(|path| {
+            let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+            serde_json::from_str(&text).with_context(|| format!("{} is not a load report", path.display()))
+        })
+        .collect::<anyhow::Result<Vec<serde_json::Value>>>()?;
+    for file in client_sim::plots::draw_load_sweep(&reports, &args.out)? {
+        println!("{}", file.display());
+    }
     Ok(())
 }
 

@@ -275,3 +275,81 @@ fn read_curves(out: &Path) -> Result<Vec<(String, Vec<f32>)>, ExperimentError> {
     }
     Ok(curves.into_iter().collect())
 }
+
+/// Latency against offered load from `fleet-sim load --json` reports: p50
+/// and p99 of each call, milliseconds on a log axis (a sweep spans from a
+/// few milliseconds to seconds past saturation). Returns the files written.
+pub fn draw_load_sweep(reports: &[serde_json::Value], base: &Path) -> Result<Vec<PathBuf>, ExperimentError> {
+    let mut series: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
+    for report in reports {
+        let Some(offered) = report["offered_per_s"].as_f64() else { continue };
+        let Some(calls) = report["calls"].as_object() else { continue };
+        for (call, figures) in calls {
+            for quantile in ["p50", "p99"] {
+                if let Some(ms) = figures["latency_ms"][quantile].as_f64() {
+                    series.entry(format!("{call} {quantile}")).or_default().push((offered, ms.max(0.01)));
+                }
+            }
+        }
+    }
+    for points in series.values_mut() {
+        points.sort_by(|a, b| a.0.total_cmp(&b.0));
+    }
+    register_font();
+    let png = base.with_extension("png");
+    let svg = base.with_extension("svg");
+    render_log(BitMapBackend::new(&png, (900, 600)).into_drawing_area(), &series)?;
+    render_log(SVGBackend::new(&svg, (900, 600)).into_drawing_area(), &series)?;
+    Ok(vec![png, svg])
+}
+
+fn render_log<DB: DrawingBackend>(
+    area: DrawingArea<DB, Shift>,
+    series: &BTreeMap<String, Vec<(f64, f64)>>,
+) -> Result<(), ExperimentError>
+where
+    DB::ErrorType: 'static,
+{
+    area.fill(&WHITE).map_err(err)?;
+    let points = || series.values().flatten();
+    let x1 = points().map(|p| p.0).fold(0.0, f64::max);
+    let (y0, y1) = points().fold((f64::INFINITY, 0.0f64), |(lo, hi), p| (lo.min(p.1), hi.max(p.1)));
+    if x1 <= 0.0 || !y0.is_finite() {
+        return Ok(());
+    }
+    let mut chart = ChartBuilder::on(&area)
+        .caption("latency against offered load", ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.0..x1 * 1.05, (y0 * 0.8..y1 * 1.25).log_scale())
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("offered calls per second")
+        .y_desc("latency from when the call was due (ms)")
+        .label_style(("sans-serif", 15))
+        .draw()
+        .map_err(err)?;
+    for (k, (label, pts)) in series.iter().enumerate() {
+        // A call's p50 and p99 share a colour; the p99 is the solid line.
+        let c = colour(k / 2);
+        let style = if label.ends_with("p99") { c.stroke_width(2) } else { c.mix(0.5).stroke_width(1) };
+        chart
+            .draw_series(LineSeries::new(pts.iter().copied(), style))
+            .map_err(err)?
+            .label(label)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+        chart.draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled()))).map_err(err)?;
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .position(SeriesLabelPosition::UpperLeft)
+        .draw()
+        .map_err(err)?;
+    area.present().map_err(err)?;
+    Ok(())
+}
