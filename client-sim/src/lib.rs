@@ -6,7 +6,8 @@
 //! - [`generate`]: generated worlds (unstructured, office, corridor, maze).
 //! - [`robot`]: one simulated robot: sensor, motion, its own gRPC client.
 //! - [`fleet`]: runs a mission with N robots and measures it.
-//! - [`experiment`]: matrices of runs, in parallel, resumable; their summaries.
+//! - [`experiment`]: matrices of runs, in parallel, resumable.
+//! - [`runs`]: their results, `runs.csv` and `summary.csv`.
 //! - [`plots`], [`picture`], [`stats`], [`report`]: what the experiments show.
 
 pub mod experiment;
@@ -17,6 +18,7 @@ pub mod picture;
 pub mod plots;
 pub mod report;
 pub mod robot;
+pub mod runs;
 pub mod stats;
 pub mod world;
 

@@ -475,8 +475,8 @@ async fn experiment(args: ExperimentArgs) -> anyhow::Result<()> {
     let experiment = Experiment::load(&args.config)?;
     let out = args.out.unwrap_or_else(|| PathBuf::from("docs/results").join(&experiment.name));
     if args.replot {
-        client_sim::experiment::summarize(&experiment, &out)?;
-        client_sim::experiment::draw_plots(&experiment, &out)?;
+        client_sim::runs::summarize(&out)?;
+        client_sim::plots::draw_plots(&experiment, &out)?;
         return Ok(());
     }
     let jobs = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));

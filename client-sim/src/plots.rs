@@ -11,8 +11,9 @@ use std::sync::Once;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::experiment::{Experiment, ExperimentError, PlotSpec, Row, samples};
+use crate::experiment::config::{Experiment, ExperimentError, PlotSpec};
 use crate::picture::PALETTE;
+use crate::runs::{Row, read_runs, samples};
 use crate::stats::welch;
 
 static FONT: Once = Once::new();
@@ -352,4 +353,22 @@ where
         .map_err(err)?;
     area.present().map_err(err)?;
     Ok(())
+}
+
+/// Draws every plot of the experiment from its results.
+pub fn draw_plots(experiment: &Experiment, out: &Path) -> Result<Vec<PathBuf>, ExperimentError> {
+    let rows = read_runs(out)?;
+    let mut written = Vec::new();
+    for (k, spec) in experiment.plots.iter().enumerate() {
+        let worlds: Vec<String> = match &spec.world {
+            Some(w) => vec![w.clone()],
+            None => experiment.worlds.iter().map(|w| w.name.clone()).collect(),
+        };
+        for world in worlds {
+            let base = out.join(format!("plot{}-{}-{}", k + 1, spec.kind, world).replace(['/', ' '], "_"));
+            let drawn = draw(experiment, spec, &world, &rows, out, &base)?;
+            written.extend(drawn);
+        }
+    }
+    Ok(written)
 }

@@ -7,7 +7,8 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
-use crate::experiment::{CheckSpec, Experiment, ExperimentError, read_runs, samples};
+use crate::experiment::{CheckSpec, Experiment, ExperimentError};
+use crate::runs::{Row, read_runs, samples};
 use crate::stats::{Sample, paired, welch};
 
 /// The verdict on one claim.
@@ -276,7 +277,7 @@ pub fn write_report(experiments: &[(Experiment, std::path::PathBuf)], out: &Path
 
 /// Which seeds were run: all the planned ones, or (a run cut for time) the
 /// first few, which cover every cell since runs go seed by seed.
-fn seeds_done(experiment: &Experiment, rows: &[crate::experiment::Row]) -> String {
+fn seeds_done(experiment: &Experiment, rows: &[Row]) -> String {
     let cells = crate::experiment::matrix(experiment).len() / experiment.seeds.max(1) as usize;
     let runs_of = |seed: u64| rows.iter().filter(|r| r.get("seed").and_then(|s| s.parse().ok()) == Some(seed)).count();
     let complete = (1..=experiment.seeds).take_while(|&s| runs_of(s) >= cells).count() as u64;

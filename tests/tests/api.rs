@@ -315,5 +315,13 @@ async fn health_reflection_and_the_policy_list_answer() {
     let burgard = policies.iter().find(|p| p.name == "burgard").unwrap();
     let beta = burgard.params.iter().find(|p| p.name == "beta").unwrap();
     assert_eq!(beta.default_value, 1.0);
+    // What a client needs to drive a policy comes from its descriptor.
+    let flags = |name: &str| {
+        let p = policies.iter().find(|p| p.name == name).unwrap();
+        (p.uses_bids, p.keeps_segmentation)
+    };
+    assert_eq!(flags("simmons"), (true, false));
+    assert_eq!(flags("segmentation"), (false, true));
+    assert_eq!(flags("burgard"), (false, false));
     exec.stop().await;
 }

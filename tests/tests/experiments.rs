@@ -5,9 +5,10 @@
 
 use std::path::Path;
 
-use client_sim::experiment::{read_runs, run_experiment};
+use client_sim::experiment::run_experiment;
 use client_sim::fleet::{CommRange, RunConfig, WorldSpec};
 use client_sim::generate::Generator;
+use client_sim::runs::read_runs;
 
 fn workspace() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))

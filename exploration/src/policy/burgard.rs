@@ -14,12 +14,29 @@
 //! casting). V is measured in metres × P(occ), so β does not depend on the
 //! grid resolution (at the paper's 15 cm cells, V in cells is V/0.15).
 
+use super::registry::{BETA, MIN_FRONTIER_SIZE, OCC_MAX, PolicyDescriptor, SMOOTHING, SWITCH_UTILITY};
 use super::{Plan, PlanningInput, Policy, Target, current_target, robot_cost_maps};
 use crate::cost::{CostCache, TraversalKind};
 use crate::grid::{Cell, CellClass, OccupancyGrid};
 use crate::visibility::line_of_sight;
 
 pub(super) const NAME: &str = "burgard";
+
+/// The catalogue's entry: name, what it does, parameters with units, and
+/// how it is built from a validated configuration.
+pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
+    name: NAME,
+    description: "Burgard et al. 2005, Algorithm 1: greedy on utility minus beta times value-iteration cost; utilities of frontier cells visible from chosen targets drop by P(d) = 1 - d/max_range",
+    params: &[MIN_FRONTIER_SIZE, SWITCH_UTILITY, BETA, OCC_MAX, SMOOTHING],
+    build: |c| {
+        Box::new(Burgard {
+            beta: c.get("beta"),
+            occ_max: c.get("occ_max"),
+            smoothing_sigma_m: c.get("smoothing_sigma_m"),
+            switch_margin: c.get("switch_margin"),
+        })
+    },
+};
 
 /// Burgard et al. 2005, Algorithm 1, with Eqs. 1–2.
 /// Complexity: one cost map per robot plus O(n²·T) for n robots, T frontier cells.

@@ -25,6 +25,7 @@
 //! still convex (balanced trajectories win), in metres, and equal to
 //! Algorithm 1's β·V at the mean distance.
 
+use super::registry::{BETA, MIN_FRONTIER_SIZE, OCC_MAX, ParamSpec, PolicyDescriptor, SMOOTHING, SWITCH_UTILITY};
 use std::collections::HashMap;
 
 use super::burgard::covered;
@@ -34,6 +35,54 @@ use crate::grid::Cell;
 use crate::rng::SplitMix64;
 
 pub(super) const NAME: &str = "burgard-joint";
+
+/// The catalogue's entry: name, what it does, parameters with units, and
+/// how it is built from a validated configuration.
+pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
+    name: NAME,
+    description: "Burgard et al. 2005, Algorithm 2: the joint assignment maximizing the sum of U(t_i | others) - beta * V_i^2; exact for small teams, randomized search with hill climbing beyond",
+    params: &[
+        MIN_FRONTIER_SIZE,
+        SWITCH_UTILITY,
+        BETA,
+        OCC_MAX,
+        SMOOTHING,
+        ParamSpec {
+            name: "candidates",
+            description: "targets considered per robot in the exact search: its best by U - beta * V^2",
+            default: 6.0,
+            min: 1.0,
+            max: 64.0,
+        },
+        ParamSpec {
+            name: "exact_limit",
+            description: "largest number of joint assignments searched exhaustively; beyond it, randomized search",
+            default: 50_000.0,
+            min: 1.0,
+            max: 10_000_000.0,
+        },
+        ParamSpec {
+            name: "restarts",
+            description: "random starting assignments of the randomized search (besides Algorithm 1's)",
+            default: 8.0,
+            min: 0.0,
+            max: 1_000.0,
+        },
+    ],
+    build: |c| {
+        Box::new(BurgardJoint {
+            burgard: Burgard {
+                beta: c.get("beta"),
+                occ_max: c.get("occ_max"),
+                smoothing_sigma_m: c.get("smoothing_sigma_m"),
+                switch_margin: c.get("switch_margin"),
+            },
+            candidates: c.get("candidates").round() as usize,
+            exact_limit: c.get("exact_limit").round() as u64,
+            restarts: c.get("restarts").round() as usize,
+        })
+    },
+};
 
 /// Burgard et al. 2005, Algorithm 2.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -38,6 +38,7 @@
 //! is. The paper's robots decide alone and meet to merge maps; here all
 //! poses are known to the executive, so every robot sees every other.
 
+use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_UTILITY};
 #[cfg(test)]
 use super::{CurrentTask, RobotView};
 use super::{Plan, PlanningInput, Policy, Target, current_target, free_space_cost_maps};
@@ -45,6 +46,62 @@ use crate::cost::CostCache;
 use crate::grid::{Cell, CellRect, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
 
 pub(super) const NAME: &str = "colares";
+
+/// The catalogue's entry: name, what it does, parameters with units, and
+/// how it is built from a validated configuration.
+pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
+    name: NAME,
+    description: "Colares & Chaimowicz 2016: U(f) = Inf(f) + Dist(f) - Coord(f), information potential, a beta-shaped distance factor and a negative wavefront from the other robots",
+    params: &[
+        MIN_FRONTIER_SIZE,
+        SWITCH_UTILITY,
+        ParamSpec {
+            name: "alpha",
+            description: "exponent alpha of the distance factor w^(alpha-1) (1-w)^(beta-1) (Eq. 4); the paper's best: 5 or 8",
+            default: 5.0,
+            min: 1.0,
+            max: 50.0,
+        },
+        ParamSpec {
+            name: "beta",
+            description: "exponent beta of the distance factor (Eq. 4); the paper's best: 9 or 8",
+            default: 9.0,
+            min: 1.0,
+            max: 50.0,
+        },
+        ParamSpec {
+            name: "sigma",
+            description: "width of the Gaussian of P(occ) centred on 0.5 that gives a cell's information potential (§3.1)",
+            default: 0.15,
+            min: 0.01,
+            max: 10.0,
+        },
+        ParamSpec {
+            name: "commit",
+            description: "1, the paper's: a robot keeps the frontier cell it chose while that cell is still frontier; 0: it chooses again at every replanning (not in the paper; can livelock, as Eq. 4 peaks at a distance)",
+            default: 1.0,
+            min: 0.0,
+            max: 1.0,
+        },
+        ParamSpec {
+            name: "window",
+            description: "side n of the n × n window whose frontier cells make a cell's frontier (§3.1), cells",
+            default: 5.0,
+            min: 1.0,
+            max: 101.0,
+        },
+    ],
+    build: |c| {
+        Box::new(Colares {
+            switch_margin: c.get("switch_margin"),
+            alpha: c.get("alpha"),
+            beta: c.get("beta"),
+            sigma: c.get("sigma"),
+            window: c.get("window").round() as usize,
+            commit: c.get("commit") >= 0.5,
+        })
+    },
+};
 
 /// Colares & Chaimowicz 2016, Eq. 1.
 #[derive(Debug, Clone, Copy, PartialEq)]

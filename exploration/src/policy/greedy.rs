@@ -7,10 +7,20 @@
 //! one. C_ij is the path length from robot i to the nearest cell of frontier
 //! (cluster) j, which is also the robot's target.
 
+use super::registry::{MIN_FRONTIER_SIZE, PolicyDescriptor, SWITCH_METRES};
 use super::{Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
 use crate::cost::CostCache;
 
 pub(super) const NAME: &str = "greedy";
+
+/// The catalogue's entry: name, what it does, parameters with units, and
+/// how it is built from a validated configuration.
+pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
+    name: NAME,
+    description: "repeatedly the robot-frontier pair of lowest path cost, both removed; when frontiers run out, start again from all of them (Bautin et al. 2011, Algorithm 2)",
+    params: &[MIN_FRONTIER_SIZE, SWITCH_METRES],
+    build: |c| Box::new(Greedy { switch_margin: c.get("switch_margin") }),
+};
 
 /// Bautin et al. 2011, Algorithm 2. Complexity: one cost map per robot plus
 /// O(n²·m) for n robots and m frontiers.

@@ -7,11 +7,21 @@
 //! frontiers are offered again to the robots left over (Wurm et al.'s
 //! "duplicating existing targets"); unreachable pairs are forbidden.
 
+use super::registry::{MIN_FRONTIER_SIZE, PolicyDescriptor, SWITCH_METRES};
 use super::{Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
 use crate::assign::assign_with_dummies;
 use crate::cost::CostCache;
 
 pub(super) const NAME: &str = "hungarian";
+
+/// The catalogue's entry: name, what it does, parameters with units, and
+/// how it is built from a validated configuration.
+pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
+    name: NAME,
+    description: "Ko et al. 2003, as described by Burgard et al. 2005 and Wurm et al. 2008: optimal robot-to-frontier assignment on path costs (the Hungarian method)",
+    params: &[MIN_FRONTIER_SIZE, SWITCH_METRES],
+    build: |c| Box::new(Hungarian { switch_margin: c.get("switch_margin") }),
+};
 
 /// The Hungarian method on path costs (Kuhn 1955; Ko et al. 2003).
 /// Complexity: one cost map per robot plus O(n²·m) per round.

@@ -15,10 +15,20 @@
 //! large teams. The target is the frontier's cell nearest to the robot,
 //! where descending the frontier's potential field leads.
 
+use super::registry::{MIN_FRONTIER_SIZE, PolicyDescriptor, SWITCH_METRES};
 use super::{Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
 use crate::cost::CostCache;
 
 pub(super) const NAME: &str = "minpos";
+
+/// The catalogue's entry: name, what it does, parameters with units, and
+/// how it is built from a validated configuration.
+pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
+    name: NAME,
+    description: "Bautin et al. 2011, Algorithm 3 (MinPos): each robot takes the frontier for which the fewest robots are strictly closer, ties by path cost",
+    params: &[MIN_FRONTIER_SIZE, SWITCH_METRES],
+    build: |c| Box::new(MinPos { switch_margin: c.get("switch_margin") }),
+};
 
 /// Bautin et al. 2011, Algorithm 3. Complexity: one cost map per robot plus
 /// O(n²·m) for the positions (O(n·m) per robot as in the paper).

@@ -357,6 +357,13 @@ pub trait Policy: Send + Sync + std::fmt::Debug {
     fn uses_bids(&self) -> bool {
         false
     }
+
+    /// Whether its plans carry a segmentation of the map into rooms and
+    /// corridors (Wurm et al. 2008), which the executive keeps for
+    /// `GetSegmentation`.
+    fn keeps_segmentation(&self) -> bool {
+        false
+    }
 }
 
 #[cfg(test)]

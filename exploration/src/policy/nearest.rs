@@ -5,10 +5,20 @@
 //! "uncoordinated" strategy of Burgard et al. 2005, §IV-C. There is no
 //! arbitration: robots that share a closest frontier all go there.
 
+use super::registry::{MIN_FRONTIER_SIZE, PolicyDescriptor, SWITCH_METRES};
 use super::{Plan, PlanningInput, Policy, Target, current_target};
 use crate::cost::{CostCache, TraversalKind, labelled_cost_map, shortest_path};
 
 pub(super) const NAME: &str = "nearest";
+
+/// The catalogue's entry: name, what it does, parameters with units, and
+/// how it is built from a validated configuration.
+pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
+    name: NAME,
+    description: "each robot heads for its closest frontier cell, without arbitration (Yamauchi 1998; Bautin et al. 2011, Algorithm 1; the uncoordinated baseline of Burgard et al. 2005)",
+    params: &[MIN_FRONTIER_SIZE, SWITCH_METRES],
+    build: |c| Box::new(Nearest { switch_margin: c.get("switch_margin") }),
+};
 
 /// Closest frontier cell by path length (Bautin et al. 2011, Algorithm 1).
 /// Complexity: one wavefront from the frontier for the whole team (one per

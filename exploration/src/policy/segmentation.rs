@@ -17,12 +17,53 @@
 //! More robots than unexplored segments: the segments are offered again to
 //! the robots left over (§III, "duplicating existing targets").
 
+use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_METRES};
 use super::{Plan, PlanningInput, Policy, Target, current_target, free_space_cost_maps};
 use crate::assign::assign_with_dummies;
 use crate::cost::CostCache;
 use crate::segment::segment;
 
 pub(super) const NAME: &str = "segmentation";
+
+/// The catalogue's entry: name, what it does, parameters with units, and
+/// how it is built from a validated configuration.
+pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
+    name: NAME,
+    description: "Wurm et al. 2008, Algorithm 1: Voronoi segmentation of the explored map, Hungarian assignment of robots to segments, then to frontiers inside each segment",
+    params: &[
+        MIN_FRONTIER_SIZE,
+        SWITCH_METRES,
+        ParamSpec {
+            name: "inside_discount",
+            description: "a segment's cost is multiplied by this for a robot already inside it (Algorithm 1, line 4)",
+            default: 0.5,
+            min: 0.0,
+            max: 1.0,
+        },
+        ParamSpec {
+            name: "min_drop_m",
+            description: "a critical point's clearance is at least this much below the passage on both its sides, metres",
+            default: 0.2,
+            min: 0.0,
+            max: 10.0,
+        },
+        ParamSpec {
+            name: "min_segment_m2",
+            description: "smaller segments merge into a neighbour, square metres",
+            default: 1.0,
+            min: 0.0,
+            max: 10_000.0,
+        },
+    ],
+    build: |c| {
+        Box::new(SegmentationPolicy {
+            switch_margin: c.get("switch_margin"),
+            inside_discount: c.get("inside_discount"),
+            min_drop_m: c.get("min_drop_m"),
+            min_segment_m2: c.get("min_segment_m2"),
+        })
+    },
+};
 
 /// Wurm et al. 2008, Algorithm 1.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -67,6 +108,10 @@ fn assign_in_rounds(costs: &[Vec<f64>], columns: usize) -> Vec<Option<usize>> {
 impl Policy for SegmentationPolicy {
     fn name(&self) -> &'static str {
         NAME
+    }
+
+    fn keeps_segmentation(&self) -> bool {
+        true
     }
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {

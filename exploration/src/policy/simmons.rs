@@ -33,11 +33,58 @@
 //! converted so (times `gain_scale`, a calibration the paper does not give;
 //! see docs/results.md) and c_j is the path length in metres.
 
+use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor};
 use super::{Bid, Capabilities, Plan, PlanningInput, Policy, Target, free_space_cost_maps};
 use crate::cost::{CostCache, CostMap};
 use crate::grid::{Cell, CellRect, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
 
 pub(super) const NAME: &str = "simmons";
+
+/// The catalogue's entry: name, what it does, parameters with units, and
+/// how it is built from a validated configuration.
+pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
+    name: NAME,
+    description: "Simmons et al. 2000: greedy on bids' net utility (1 - d) * I - c, d the overlap of gain rectangles with those already assigned; minimum gain; hysteresis ratio",
+    params: &[
+        MIN_FRONTIER_SIZE,
+        ParamSpec {
+            name: "hysteresis_ratio",
+            description: "a frontier inside the gain region of the robot's current task has its gain divided by this (§4.2; usually 0.85)",
+            default: 0.85,
+            min: 0.01,
+            max: 1.0,
+        },
+        ParamSpec {
+            name: "min_gain",
+            description: "a robot whose best discounted gain is below this many cells stays idle (§4.2)",
+            default: 1.0,
+            min: 0.0,
+            max: 1_000_000.0,
+        },
+        ParamSpec {
+            name: "gain_scale",
+            description: "u = gain_scale * (1 - d) * I - c, both in metres: I, the unknown area in reach, as metres of driving that reveal it (area / sensor width 2r), c the path; 1 counts a metre of revealing driving as a metre of path",
+            default: 1.0,
+            min: 0.0,
+            max: 1_000.0,
+        },
+        ParamSpec {
+            name: "spacing_m",
+            description: "bid frontier cells are at least this far apart (§4.1: about a robot radius, 30 cm)",
+            default: 0.3,
+            min: 0.0,
+            max: 10.0,
+        },
+    ],
+    build: |c| {
+        Box::new(Simmons {
+            hysteresis_ratio: c.get("hysteresis_ratio"),
+            min_gain: c.get("min_gain"),
+            gain_scale: c.get("gain_scale"),
+            spacing_m: c.get("spacing_m"),
+        })
+    },
+};
 
 /// Simmons et al. 2000, §4.2.
 #[derive(Debug, Clone, Copy, PartialEq)]

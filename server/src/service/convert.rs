@@ -325,8 +325,11 @@ pub fn policies() -> pb::ListPoliciesResponse {
     pb::ListPoliciesResponse {
         policies: catalogue()
             .iter()
-            .map(|d| pb::PolicyInfo {
+            .filter_map(|d| PolicyConfig::default_for(d.name).ok().map(|config| (d, config.build())))
+            .map(|(d, policy)| pb::PolicyInfo {
                 name: d.name.to_owned(),
+                uses_bids: policy.uses_bids(),
+                keeps_segmentation: policy.keeps_segmentation(),
                 description: d.description.to_owned(),
                 params: d
                     .params

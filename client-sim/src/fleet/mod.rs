@@ -33,6 +33,12 @@ use exploration::rng::SplitMix64;
 use exploration_proto::v1 as pb;
 use exploration_proto::v1::missions_client::MissionsClient;
 
+mod steps;
+
+use steps::{Exploration, tick};
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::Channel;
+
 use crate::generate::{Generator, generate};
 use crate::robot::{Bidding, RobotError, RobotModel, SimRobot, TeamMap};
 use crate::world::{StartChoice, World, WorldError};
@@ -491,65 +497,33 @@ fn packed_around(world: &World, start: Cell, n: usize) -> Vec<Cell> {
     cells
 }
 
-/// Gives robot `to` what the other robots of its cluster integrated and
-/// have not sent it yet (Burgard et al. 2005 §III: each robot logs what it
-/// sent each peer, so nothing is integrated twice).
-fn gather(robots: &mut [SimRobot], cluster: &[usize], to: usize, world: &World) {
-    for &from in cluster.iter().filter(|&&from| from != to) {
-        let (sender, receiver) = if from < to {
-            let (low, high) = robots.split_at_mut(to);
-            (&mut low[from], &mut high[0])
-        } else {
-            let (low, high) = robots.split_at_mut(from);
-            (&mut high[0], &mut low[to])
-        };
-        sender.share_with(receiver, to, world);
-    }
+/// What the executive says of a policy: whether robots bid, whether it
+/// keeps a segmentation, its parameters.
+async fn policy_info<T>(missions: &mut MissionsClient<T>, name: &str) -> Result<pb::PolicyInfo, SimError>
+where
+    T: tonic::client::GrpcService<tonic::body::Body> + Clone,
+    T::Error: Into<tonic::codegen::StdError>,
+    T::ResponseBody: tonic::codegen::Body<Data = tonic::codegen::Bytes> + Send + 'static,
+    <T::ResponseBody as tonic::codegen::Body>::Error: Into<tonic::codegen::StdError> + Send,
+{
+    let listed = missions
+        .list_policies(pb::ListPoliciesRequest {})
+        .await
+        .map_err(|status| SimError::Rpc { what: "ListPolicies", status })?
+        .into_inner();
+    listed
+        .policies
+        .into_iter()
+        .find(|p| p.name == name)
+        .ok_or_else(|| SimError::Executive(format!("the executive offers no policy {name:?}")))
 }
 
-/// Robot `from` passes what it knows to the rest of its cluster.
-fn scatter(robots: &mut [SimRobot], cluster: &[usize], from: usize, world: &World) {
-    for &to in cluster.iter().filter(|&&to| to != from) {
-        gather(robots, &[from, to], to, world);
-    }
-}
+/// The executive's mission API as the fleet holds it: a lazy channel with
+/// the fleet's bearer token.
+type Missions = MissionsClient<InterceptedService<Channel, exploration_proto::Bearer>>;
 
-/// Robots in range of each other, through any chain of robots in range
-/// (the ad-hoc network forwards within a cluster, Burgard et al. §III).
-fn communication_clusters(robots: &[SimRobot], range_cells: f64) -> Vec<Vec<usize>> {
-    let n = robots.len();
-    let mut cluster: Vec<usize> = (0..n).collect();
-    fn root(c: &mut [usize], mut k: usize) -> usize {
-        while c[k] != k {
-            c[k] = c[c[k]];
-            k = c[k];
-        }
-        k
-    }
-    for i in 0..n {
-        for j in i + 1..n {
-            if robots[i].cell.distance(robots[j].cell) <= range_cells {
-                let (a, b) = (root(&mut cluster, i), root(&mut cluster, j));
-                cluster[a.max(b)] = a.min(b);
-            }
-        }
-    }
-    let mut groups: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
-    for i in 0..n {
-        let r = root(&mut cluster, i);
-        groups.entry(r).or_default().push(i);
-    }
-    groups.into_values().collect()
-}
-
-/// Moves the executive's simulated clock on by one step (the time a robot of
-/// the reference speed takes for one cell), when it has one.
-async fn tick(clock: Option<&coordinator::ManualClock>, frame: &exploration::grid::GridFrame) {
-    if let Some(clock) = clock {
-        clock.step(Duration::from_secs_f64(frame.resolution / crate::robot::REFERENCE_SPEED_MPS)).await;
-    }
-}
-
+/// One run against a running executive: create the mission, bring the team
+/// up, step it until the map is known or the run cannot go on, and measure.
 async fn run_against(
     config: &RunConfig,
     world: World,
@@ -558,6 +532,39 @@ async fn run_against(
     clock: Option<Arc<coordinator::ManualClock>>,
 ) -> Result<RunReport, SimError> {
     let started = Instant::now();
+    let mut missions = missions_client(config, url, token)?;
+    let mission = create_mission(&missions, config, &world).await?;
+    if config.progress {
+        let frame = world.frame;
+        eprintln!(
+            "mission {} on {} ({}×{} cells of {} m, {} reachable), {} robots, policy {}",
+            mission.id,
+            world.name,
+            frame.width,
+            frame.height,
+            frame.resolution,
+            world.reachable_cells,
+            config.robots,
+            config.policy
+        );
+    }
+    let policy = policy_info(&mut missions, &config.policy).await?;
+    let stop = CancellationToken::new();
+    let _stop_streams = stop.clone().drop_guard();
+    let mut robots = launch_team(config, &world, url, token, mission.id, &policy, &stop).await?;
+    inject_faults(&mut robots, config, &world)?;
+    let mut exploration = Exploration::new(config, &world);
+    let ended = exploration.run(&mut robots, &world, config, clock.as_deref()).await?;
+    let home_steps = if config.return_home {
+        return_home(&mut robots, &world, &mut exploration.team, config, clock.as_deref()).await?
+    } else {
+        None
+    };
+    let from_executive = ask_executive(&mut missions, mission.id, config, &policy, &world).await?;
+    Ok(exploration.report(config, world, &robots, mission.id, ended, home_steps, from_executive, started))
+}
+
+fn missions_client(config: &RunConfig, url: &str, token: Option<&str>) -> Result<Missions, SimError> {
     if let Some(warning) = exploration_proto::client::plaintext_token_warning(url, token) {
         tracing::warn!("{warning}");
     }
@@ -566,9 +573,13 @@ async fn run_against(
         .connect_lazy();
     let bearer = exploration_proto::Bearer::new(token)
         .map_err(|e| SimError::Executive(format!("the token is not valid metadata: {e}")))?;
-    let mut missions = MissionsClient::with_interceptor(channel, bearer);
+    Ok(MissionsClient::with_interceptor(channel, bearer))
+}
+
+/// Creates the run's mission, in lockstep so that a seed gives the same run
+/// at any speed.
+async fn create_mission(missions: &Missions, config: &RunConfig, world: &World) -> Result<pb::Mission, SimError> {
     let frame = world.frame;
-    let limited = config.comm_range.is_some();
     let request = pb::CreateMissionRequest {
         name: format!("fleet-sim {} seed {}", world.name, config.seed),
         frame: Some(pb::MapFrame {
@@ -582,9 +593,7 @@ async fn run_against(
             params: config.params.iter().map(|(k, v)| (k.clone(), *v)).collect(),
         }),
         replan: None,
-        scoped_by_communication: limited,
-        // A run steps in lock-step with the executive's plans: a seed
-        // gives the same run at any speed.
+        scoped_by_communication: config.comm_range.is_some(),
         lockstep: true,
         lifecycle: Some(pb::LifecycleSettings {
             lease_s: config.lease_s.unwrap_or(0.0),
@@ -595,46 +604,46 @@ async fn run_against(
     // An executive restarting (or busy) when the run begins is waited for, as
     // the robots wait for it later. A create that was committed but whose
     // answer was lost leaves an unused mission behind: harmless.
-    let mission = crate::robot::retry("CreateMission", config.retry_budget, || {
+    Ok(crate::robot::retry("CreateMission", config.retry_budget, || {
         let mut missions = missions.clone();
         let request = request.clone();
         async move { missions.create_mission(request).await }
     })
-    .await?;
-    if config.progress {
-        eprintln!(
-            "mission {} on {} ({}×{} cells of {} m, {} reachable), {} robots, policy {}",
-            mission.id,
-            world.name,
-            frame.width,
-            frame.height,
-            frame.resolution,
-            world.reachable_cells,
-            config.robots,
-            config.policy
-        );
-    }
-    let stop = CancellationToken::new();
-    let _stop_streams = stop.clone().drop_guard();
-    let bidding = (config.policy == "simmons").then(|| Bidding {
-        every: config.bid_every.max(1),
-        spacing_m: config.params.get("spacing_m").copied().unwrap_or(0.3),
-    });
-    let starts = start_cells(&world, config);
+    .await?)
+}
+
+/// Connects and registers every robot on its start cell.
+async fn launch_team(
+    config: &RunConfig,
+    world: &World,
+    url: &str,
+    token: Option<&str>,
+    mission_id: u64,
+    policy: &pb::PolicyInfo,
+    stop: &CancellationToken,
+) -> Result<Vec<SimRobot>, SimError> {
+    // Bidding robots space their bid cells as the policy's `spacing_m` says.
+    let bidding =
+        policy.uses_bids.then(|| Bidding {
+            every: config.bid_every.max(1),
+            spacing_m: config.params.get("spacing_m").copied().unwrap_or_else(|| {
+                policy.params.iter().find(|p| p.name == "spacing_m").map_or(0.0, |p| p.default_value)
+            }),
+        });
     let mut robots = Vec::with_capacity(config.robots);
-    for (i, &start) in starts.iter().enumerate() {
+    for (i, start) in start_cells(world, config).into_iter().enumerate() {
         robots.push(
             SimRobot::connect(
                 url,
                 config.tls.as_ref(),
                 token,
-                mission.id,
+                mission_id,
                 format!("robot-{i}"),
                 start,
-                &world,
+                world,
                 config.models[i % config.models.len()],
                 bidding,
-                limited,
+                config.comm_range.is_some(),
                 config.robots,
                 config.retry_budget,
                 stop.clone(),
@@ -642,6 +651,11 @@ async fn run_against(
             .await?,
         );
     }
+    Ok(robots)
+}
+
+/// Gives the robots the faults the run asks for.
+fn inject_faults(robots: &mut [SimRobot], config: &RunConfig, world: &World) -> Result<(), SimError> {
     for fault in &config.faults {
         let Some(robot) = robots.get_mut(fault.robot) else {
             return Err(SimError::Config(format!(
@@ -654,163 +668,48 @@ async fn run_against(
             FaultKind::Dies(step) => faults.dies_at = Some(step),
             FaultKind::Freezes(step) => faults.freezes_at = Some(step),
             FaultKind::CannotReach(min, max) => {
+                let frame = world.frame;
                 let (low, high) = (frame.cell_from_world_unchecked(&min), frame.cell_from_world_unchecked(&max));
                 faults.unreachable = Some(exploration::grid::CellRect::spanning(low, high));
             }
         }
         robot.inject(faults);
     }
-    let range_cells = config.comm_range.map(|r| r.metres(&world) / frame.resolution);
-    let mut rng = SplitMix64::new(config.seed ^ 0x494E_5445_5246);
-    let mut team = TeamMap::new(frame);
-    let mut milestones: [Option<u64>; 4] = [None; 4];
-    const LEVELS: [f64; 4] = [0.5, 0.9, 0.95, 1.0];
-    let mut curve = Vec::new();
-    let (mut idle_steps, mut idle_total) = (0, 0);
-    let mut last_progress = (0, 0);
-    let mut step = 0;
-    let known = |team: &TeamMap, robots: &[SimRobot]| {
-        if limited { robots.iter().map(|r| r.known_reachable).max().unwrap_or(0) } else { team.known_reachable }
-    };
-    let ended = loop {
-        // Limited communication: who is in range, and what they pass on.
-        let clusters = range_cells.map(|range| communication_clusters(&robots, range)).unwrap_or_default();
-        let mut cluster_of = vec![None; robots.len()];
-        for (c, cluster) in clusters.iter().enumerate() {
-            for &k in cluster {
-                cluster_of[k] = Some(c);
-                gather(&mut robots, cluster, k, &world);
-            }
-        }
-        for cluster in &clusters {
-            let ids: Vec<u64> = cluster.iter().map(|&k| robots[k].id).collect();
-            for &k in cluster {
-                let peers = ids.iter().copied().filter(|id| *id != robots[k].id).collect();
-                robots[k].hear_peers(peers, &world, &team).await?;
-            }
-        }
-        let mut any_task = false;
-        let mut executive_done = false;
-        let cells: Vec<Cell> = robots.iter().map(|r| r.cell).collect();
-        let mut occupied: HashSet<Cell> = cells.iter().copied().collect();
-        for i in 0..robots.len() {
-            let robot = &mut robots[i];
-            // Interference: a move near another robot succeeds with probability p.
-            let blocked = config.interference.is_some_and(|f| {
-                let near = cells
-                    .iter()
-                    .enumerate()
-                    .any(|(j, c)| j != i && c.distance(robot.cell) * frame.resolution <= f.radius_m);
-                near && !rng.chance(f.success)
-            });
-            let outcome = robot.step(&world, &mut team, blocked, &mut occupied).await?;
-            // Robots in range talk all the time: what one senses reaches its
-            // sub-team at once, before any of them plans on its own map (the
-            // executive plans the sub-team on the map they share), even one
-            // that leaves the range before its next step.
-            if let Some(c) = cluster_of[i] {
-                scatter(&mut robots, &clusters[c], i, &world);
-            }
-            any_task |= outcome.has_task;
-            if !outcome.has_task {
-                idle_total += 1;
-            }
-            executive_done |= outcome.mission_completed;
-        }
-        let known_now = known(&team, &robots);
-        let coverage = known_now as f64 / world.reachable_cells.max(1) as f64;
-        curve.push(coverage as f32);
-        for (slot, level) in milestones.iter_mut().zip(LEVELS) {
-            // On the base of `steps`: the number of steps taken when reached.
-            if slot.is_none() && coverage >= level - 1e-12 {
-                *slot = Some(step + 1);
-            }
-        }
-        if config.progress && step % 250 == 0 {
-            eprintln!("step {step:>6}  coverage {:>5.1} %", 100.0 * coverage);
-        }
-        if known_now >= world.reachable_cells {
-            break "every reachable free cell is known".to_owned();
-        }
-        if executive_done && !limited {
-            break "the executive reports no frontier left".to_owned();
-        }
-        idle_steps = if any_task { 0 } else { idle_steps + 1 };
-        if idle_steps >= config.stall_steps {
-            break format!("no robot had a task for {idle_steps} steps");
-        }
-        if known_now > last_progress.0 {
-            last_progress = (known_now, step);
-        } else if step - last_progress.1 >= 10 * config.stall_steps {
-            break format!("the team learnt nothing for {} steps", step - last_progress.1);
-        }
-        step += 1;
-        tick(clock.as_deref(), &frame).await;
-        if let Some(pace) = config.pace {
-            tokio::time::sleep(pace).await;
-        }
-        if step >= config.max_steps {
-            break format!("step limit {} reached", config.max_steps);
-        }
-    };
-    let home_steps = if config.return_home {
-        return_home(&mut robots, &world, &mut team, config, clock.as_deref()).await?
-    } else {
-        None
-    };
+    Ok(())
+}
+
+/// What the report takes from the executive at the end of a run.
+struct FromExecutive {
+    summary: pb::Mission,
+    segments: Option<Vec<u32>>,
+    fault_record: Option<FaultRecord>,
+}
+
+async fn ask_executive(
+    missions: &mut Missions,
+    mission_id: u64,
+    config: &RunConfig,
+    policy: &pb::PolicyInfo,
+    world: &World,
+) -> Result<FromExecutive, SimError> {
     let summary = missions
-        .get_mission(pb::GetMissionRequest { mission_id: mission.id })
+        .get_mission(pb::GetMissionRequest { mission_id })
         .await
         .map_err(|status| SimError::Rpc { what: "GetMission", status })?
         .into_inner();
-    let segments = if config.policy == "segmentation" {
+    let segments = if policy.keeps_segmentation {
         missions
-            .get_segmentation(pb::GetSegmentationRequest { mission_id: mission.id, include_labels: true })
+            .get_segmentation(pb::GetSegmentationRequest { mission_id, include_labels: true })
             .await
             .ok()
             .map(|r| r.into_inner().labels)
-            .filter(|l| l.len() == frame.len() * 4)
+            .filter(|l| l.len() == world.frame.len() * 4)
             .map(|l| l.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
     } else {
         None
     };
-    let fault_record =
-        if config.faults.is_empty() { None } else { Some(fault_record(&mut missions, mission.id).await?) };
-    let sensed = team.sensed_by.iter().filter(|&&n| n > 0).count();
-    let overlapping = team.sensed_by.iter().filter(|&&n| n > 1).count();
-    let known_now = known(&team, &robots);
-    Ok(RunReport {
-        mission_id: mission.id,
-        map: world.name.clone(),
-        policy: config.policy.clone(),
-        robots: config.robots,
-        seed: config.seed,
-        completed: known_now >= world.reachable_cells,
-        ended,
-        steps: step + 1,
-        coverage: known_now as f64 / world.reachable_cells.max(1) as f64,
-        t50: milestones[0],
-        t90: milestones[1],
-        t95: milestones[2],
-        t100: milestones[3],
-        distance_per_robot: robots.iter().map(|r| r.distance_m).collect(),
-        idle_steps: idle_total,
-        replans: summary.replans,
-        map_updates: summary.map_updates,
-        updates_acknowledged: robots.iter().map(|r| r.acknowledged_updates).sum(),
-        reachable_cells: world.reachable_cells,
-        cell_size: frame.resolution,
-        comm_range_m: range_cells.map(|r| r * frame.resolution),
-        overlap: if sensed == 0 { 0.0 } else { overlapping as f64 / sensed as f64 },
-        stream_lags: robots.iter().map(|r| r.stream_lags).sum(),
-        wall_time_s: started.elapsed().as_secs_f64(),
-        trajectories: robots.iter().map(|r| r.trajectory.clone()).collect(),
-        coverage_curve: curve,
-        world: Some(world),
-        segments,
-        fault_record,
-        home_steps,
-    })
+    let fault_record = if config.faults.is_empty() { None } else { Some(fault_record(missions, mission_id).await?) };
+    Ok(FromExecutive { summary, segments, fault_record })
 }
 
 /// Steps the team on after exploration: the executive completes the mission
