@@ -8,8 +8,18 @@ use common::{TestExecutive, bundled_map, create_mission, patch, register, update
 use exploration_proto::v1 as pb;
 use tonic::Code;
 
-const POLICIES: [&str; 9] =
-    ["nearest", "greedy", "burgard", "burgard-joint", "simmons", "minpos", "segmentation", "hungarian", "colares"];
+const POLICIES: [&str; 10] = [
+    "nearest",
+    "greedy",
+    "burgard",
+    "burgard-joint",
+    "simmons",
+    "minpos",
+    "segmentation",
+    "hungarian",
+    "colares",
+    "unassigned",
+];
 
 #[tokio::test]
 async fn the_api_lists_every_policy_and_switches_them_on_a_running_mission() {

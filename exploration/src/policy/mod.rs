@@ -22,6 +22,7 @@ mod nearest;
 mod registry;
 mod segmentation;
 mod simmons;
+mod unassigned;
 
 pub use burgard::{Burgard, coverage_probability};
 pub use burgard_joint::BurgardJoint;
@@ -33,6 +34,7 @@ pub use nearest::Nearest;
 pub use registry::{ParamSpec, PolicyConfig, PolicyDescriptor, PolicyError, catalogue};
 pub use segmentation::SegmentationPolicy;
 pub use simmons::{Simmons, compute_bids};
+pub use unassigned::Unassigned;
 
 /// A robot's identity, as the executive numbers them.
 pub type RobotId = u64;
@@ -425,6 +427,7 @@ mod tests {
             "segmentation",
             "hungarian",
             "colares",
+            "unassigned",
         ] {
             assert!(err.to_string().contains(name), "{err}");
         }

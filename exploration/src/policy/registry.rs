@@ -93,6 +93,7 @@ pub fn catalogue() -> &'static [PolicyDescriptor] {
         super::segmentation::DESCRIPTOR,
         super::hungarian::DESCRIPTOR,
         super::colares::DESCRIPTOR,
+        super::unassigned::DESCRIPTOR,
     ]
 }
 
