@@ -109,7 +109,28 @@ struct Objective<'a> {
     pairs: HashMap<(usize, usize, usize), f64>,
 }
 
-impl Objective<'_> {
+impl<'a> Objective<'a> {
+    /// The objective of `burgard`'s β and margin over these costs; V̄ is
+    /// the mean over the reachable pairs (1 when there are none).
+    fn new(
+        input: &'a PlanningInput<'a>,
+        frontier: &'a [Cell],
+        values: &'a [Vec<Option<f64>>],
+        burgard: &Burgard,
+    ) -> Self {
+        let (sum, count) = values.iter().flatten().flatten().fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+        let mean_cost = if count > 0 && sum > 0.0 { sum / count as f64 } else { 1.0 };
+        Objective {
+            input,
+            frontier,
+            values,
+            beta: burgard.beta,
+            mean_cost,
+            margin: burgard.switch_margin,
+            pairs: HashMap::new(),
+        }
+    }
+
     /// 1 − β·V²/V̄ of robot i at frontier cell t (see the module on V̄).
     fn own(&self, i: usize, t: usize) -> f64 {
         let v = self.values[i][t].unwrap_or(f64::INFINITY);
@@ -146,18 +167,7 @@ impl BurgardJoint {
     fn objective_of(&self, input: &PlanningInput<'_>, targets: &[Option<Cell>]) -> f64 {
         let frontier = input.frontier_cells();
         let values = self.burgard.cost_values(input, &mut CostCache::new(input.grid), &frontier);
-        let reachable = values.iter().flatten().flatten();
-        let (sum, count) = reachable.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
-        let mean_cost = if count > 0 && sum > 0.0 { sum / count as f64 } else { 1.0 };
-        let mut objective = Objective {
-            input,
-            frontier: &frontier,
-            values: &values,
-            beta: self.burgard.beta,
-            mean_cost,
-            margin: self.burgard.switch_margin,
-            pairs: HashMap::new(),
-        };
+        let mut objective = Objective::new(input, &frontier, &values, &self.burgard);
         let pairs: Vec<(usize, usize)> = targets
             .iter()
             .enumerate()
@@ -252,18 +262,7 @@ impl Policy for BurgardJoint {
         let frontier = input.frontier_cells();
         let values = self.burgard.cost_values(input, costs, &frontier);
         let n = input.robots.len();
-        let reachable = values.iter().flatten().flatten();
-        let (sum, count) = reachable.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
-        let mean_cost = if count > 0 && sum > 0.0 { sum / count as f64 } else { 1.0 };
-        let mut objective = Objective {
-            input,
-            frontier: &frontier,
-            values: &values,
-            beta: self.burgard.beta,
-            mean_cost,
-            margin: self.burgard.switch_margin,
-            pairs: HashMap::new(),
-        };
+        let mut objective = Objective::new(input, &frontier, &values, &self.burgard);
         // Each robot's reachable targets, best first by 1 − β·V².
         let ranked: Vec<(usize, Vec<usize>)> = (0..n)
             .map(|i| {

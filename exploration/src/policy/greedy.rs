@@ -79,7 +79,7 @@ mod tests {
     use super::*;
     use crate::grid::Cell;
     use crate::grid::testing::grid_from_picture;
-    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
+    use crate::policy::testing::{cheapest_pair_trap, plan_targets, plan_with_defaults, robot};
 
     #[test]
     fn the_cheapest_pair_goes_first_and_frontiers_are_reused_when_they_run_out() {
@@ -106,15 +106,8 @@ mod tests {
     /// (11.4); closest frontier sends both left.
     #[test]
     fn the_cheapest_pair_wins_even_when_the_total_is_worse() {
-        let grid = grid_from_picture(&[
-            "##############", //
-            "?............?", //
-            "##.###########", //
-            "##.###########", //
-            "##############", //
-        ]);
-        let (left, right) = (Some(Cell::new(1, 3)), Some(Cell::new(12, 3)));
-        let robots = [robot(0, Cell::new(3, 3), 5.0), robot(1, Cell::new(2, 1), 5.0)];
+        let (grid, robots, left, right) = cheapest_pair_trap();
+        let (left, right) = (Some(left), Some(right));
         assert_eq!(plan_targets(&Greedy::default(), &grid, &robots), vec![left, right]);
         assert_eq!(plan_with_defaults("nearest", &grid, &robots), vec![left, left]);
         assert_eq!(plan_with_defaults("hungarian", &grid, &robots), vec![right, left]);

@@ -78,7 +78,7 @@ mod tests {
     use super::*;
     use crate::grid::Cell;
     use crate::grid::testing::grid_from_picture;
-    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
+    use crate::policy::testing::{cheapest_pair_trap, plan_targets, plan_with_defaults, robot};
 
     #[test]
     fn the_total_path_cost_is_minimal() {
@@ -98,15 +98,8 @@ mod tests {
     /// greedy and closest frontier answer otherwise.
     #[test]
     fn the_least_total_beats_the_cheapest_pair_first() {
-        let grid = grid_from_picture(&[
-            "##############", //
-            "?............?", //
-            "##.###########", //
-            "##.###########", //
-            "##############", //
-        ]);
-        let (left, right) = (Some(Cell::new(1, 3)), Some(Cell::new(12, 3)));
-        let robots = [robot(0, Cell::new(3, 3), 5.0), robot(1, Cell::new(2, 1), 5.0)];
+        let (grid, robots, left, right) = cheapest_pair_trap();
+        let (left, right) = (Some(left), Some(right));
         assert_eq!(plan_targets(&Hungarian::default(), &grid, &robots), vec![right, left]);
         assert_eq!(plan_with_defaults("greedy", &grid, &robots), vec![left, right]);
         assert_eq!(plan_with_defaults("nearest", &grid, &robots), vec![left, left]);

@@ -373,6 +373,7 @@ pub(crate) mod testing {
     //! Fixtures shared by the policies' tests.
     use super::*;
     use crate::frontier::{FrontierMap, clusters};
+    use crate::grid::testing::grid_from_picture;
 
     pub fn robot(id: RobotId, cell: Cell, sensor_range_m: f64) -> RobotView {
         RobotView {
@@ -387,6 +388,25 @@ pub(crate) mod testing {
             current: None,
             excluded: Vec::new(),
         }
+    }
+
+    /// A corridor with a frontier at each end and a dead-end branch down
+    /// from its left part: robot 0 in the corridor near the left end, robot 1
+    /// at the bottom of the branch (2.4 from the left end, 11.4 from the
+    /// right; robot 0 is 2 and 9 away). The cheapest pair of all is robot 0
+    /// to the left end, which leaves robot 1 the far right (13.4 in all); the
+    /// least total swaps them (11.4). Returns the grid, the robots and the
+    /// left and right frontier cells.
+    pub fn cheapest_pair_trap() -> (OccupancyGrid, [RobotView; 2], Cell, Cell) {
+        let grid = grid_from_picture(&[
+            "##############", //
+            "?............?", //
+            "##.###########", //
+            "##.###########", //
+            "##############", //
+        ]);
+        let robots = [robot(0, Cell::new(3, 3), 5.0), robot(1, Cell::new(2, 1), 5.0)];
+        (grid, robots, Cell::new(1, 3), Cell::new(12, 3))
     }
 
     /// Runs the named policy with its default parameters, as a mission that
