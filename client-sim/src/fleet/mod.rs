@@ -19,7 +19,7 @@
 //! so leases, stalls and replanning intervals are in simulated seconds and a
 //! seed gives the same run on any machine at any load.
 
-use std::collections::{BTreeMap, HashSet};
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -40,7 +40,7 @@ use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 
 use crate::generate::{Generator, generate};
-use crate::robot::{Bidding, RobotError, RobotModel, SimRobot, TeamMap};
+use crate::robot::{Bidding, Occupancy, RobotError, RobotModel, SimRobot, TeamMap};
 use crate::world::{StartChoice, World, WorldError};
 
 /// Which world to explore.
@@ -499,23 +499,30 @@ fn packed_around(world: &World, start: Cell, n: usize) -> Vec<Cell> {
 
 /// What the executive says of a policy: whether robots bid, whether it
 /// keeps a segmentation, its parameters.
-async fn policy_info<T>(missions: &mut MissionsClient<T>, name: &str) -> Result<pb::PolicyInfo, SimError>
-where
-    T: tonic::client::GrpcService<tonic::body::Body> + Clone,
-    T::Error: Into<tonic::codegen::StdError>,
-    T::ResponseBody: tonic::codegen::Body<Data = tonic::codegen::Bytes> + Send + 'static,
-    <T::ResponseBody as tonic::codegen::Body>::Error: Into<tonic::codegen::StdError> + Send,
-{
-    let listed = missions
-        .list_policies(pb::ListPoliciesRequest {})
-        .await
-        .map_err(|status| SimError::Rpc { what: "ListPolicies", status })?
-        .into_inner();
+async fn policy_info(missions: &Missions, name: &str, budget: Duration) -> Result<pb::PolicyInfo, SimError> {
+    let listed =
+        ask(missions, "ListPolicies", budget, |mut m| async move { m.list_policies(pb::ListPoliciesRequest {}).await })
+            .await?;
     listed
         .policies
         .into_iter()
         .find(|p| p.name == name)
         .ok_or_else(|| SimError::Executive(format!("the executive offers no policy {name:?}")))
+}
+
+/// Calls the executive on a clone of the client, retrying through restarts
+/// and shedding as the robots do: a run survives an executive killed at any
+/// moment, before, during or after its steps.
+async fn ask<T, Fut>(
+    missions: &Missions,
+    what: &'static str,
+    budget: Duration,
+    call: impl Fn(Missions) -> Fut,
+) -> Result<T, SimError>
+where
+    Fut: std::future::Future<Output = Result<tonic::Response<T>, Status>>,
+{
+    Ok(crate::robot::retry(what, budget, || call(missions.clone())).await?)
 }
 
 /// The executive's mission API as the fleet holds it: a lazy channel with
@@ -532,7 +539,7 @@ async fn run_against(
     clock: Option<Arc<coordinator::ManualClock>>,
 ) -> Result<RunReport, SimError> {
     let started = Instant::now();
-    let mut missions = missions_client(config, url, token)?;
+    let missions = missions_client(config, url, token)?;
     let mission = create_mission(&missions, config, &world).await?;
     if config.progress {
         let frame = world.frame;
@@ -548,7 +555,7 @@ async fn run_against(
             config.policy
         );
     }
-    let policy = policy_info(&mut missions, &config.policy).await?;
+    let policy = policy_info(&missions, &config.policy, config.retry_budget).await?;
     let stop = CancellationToken::new();
     let _stop_streams = stop.clone().drop_guard();
     let mut robots = launch_team(config, &world, url, token, mission.id, &policy, &stop).await?;
@@ -560,7 +567,7 @@ async fn run_against(
     } else {
         None
     };
-    let from_executive = ask_executive(&mut missions, mission.id, config, &policy, &world).await?;
+    let from_executive = ask_executive(&missions, mission.id, config, &policy, &world).await?;
     Ok(exploration.report(config, world, &robots, mission.id, ended, home_steps, from_executive, started))
 }
 
@@ -604,12 +611,11 @@ async fn create_mission(missions: &Missions, config: &RunConfig, world: &World) 
     // An executive restarting (or busy) when the run begins is waited for, as
     // the robots wait for it later. A create that was committed but whose
     // answer was lost leaves an unused mission behind: harmless.
-    Ok(crate::robot::retry("CreateMission", config.retry_budget, || {
-        let mut missions = missions.clone();
+    ask(missions, "CreateMission", config.retry_budget, |mut m| {
         let request = request.clone();
-        async move { missions.create_mission(request).await }
+        async move { m.create_mission(request).await }
     })
-    .await?)
+    .await
 }
 
 /// Connects and registers every robot on its start cell.
@@ -686,29 +692,31 @@ struct FromExecutive {
 }
 
 async fn ask_executive(
-    missions: &mut Missions,
+    missions: &Missions,
     mission_id: u64,
     config: &RunConfig,
     policy: &pb::PolicyInfo,
     world: &World,
 ) -> Result<FromExecutive, SimError> {
-    let summary = missions
-        .get_mission(pb::GetMissionRequest { mission_id })
-        .await
-        .map_err(|status| SimError::Rpc { what: "GetMission", status })?
-        .into_inner();
+    let budget = config.retry_budget;
+    let summary = ask(missions, "GetMission", budget, |mut m| async move {
+        m.get_mission(pb::GetMissionRequest { mission_id }).await
+    })
+    .await?;
     let segments = if policy.keeps_segmentation {
-        missions
-            .get_segmentation(pb::GetSegmentationRequest { mission_id, include_labels: true })
-            .await
-            .ok()
-            .map(|r| r.into_inner().labels)
-            .filter(|l| l.len() == world.frame.len() * 4)
-            .map(|l| l.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+        ask(missions, "GetSegmentation", budget, |mut m| async move {
+            m.get_segmentation(pb::GetSegmentationRequest { mission_id, include_labels: true }).await
+        })
+        .await
+        .ok()
+        .map(|r| r.labels)
+        .filter(|l| l.len() == world.frame.len() * 4)
+        .map(|l| l.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
     } else {
         None
     };
-    let fault_record = if config.faults.is_empty() { None } else { Some(fault_record(missions, mission_id).await?) };
+    let fault_record =
+        if config.faults.is_empty() { None } else { Some(fault_record(missions, mission_id, budget).await?) };
     Ok(FromExecutive { summary, segments, fault_record })
 }
 
@@ -725,7 +733,7 @@ async fn return_home(
 ) -> Result<Option<u64>, SimError> {
     for step in 1..=config.max_steps {
         let (mut completed, mut busy) = (false, false);
-        let mut occupied: HashSet<Cell> = robots.iter().map(|r| r.cell).collect();
+        let mut occupied = Occupancy::of(robots.iter().map(|r| r.cell));
         for robot in robots.iter_mut() {
             let outcome = robot.step(world, team, false, &mut occupied).await?;
             completed |= outcome.mission_completed;
@@ -742,25 +750,17 @@ async fn return_home(
     Ok(None)
 }
 
-async fn fault_record<T>(missions: &mut MissionsClient<T>, mission_id: u64) -> Result<FaultRecord, SimError>
-where
-    T: tonic::client::GrpcService<tonic::body::Body>,
-    T::Error: Into<tonic::codegen::StdError>,
-    T::ResponseBody: tonic::codegen::Body<Data = tonic::codegen::Bytes> + Send + 'static,
-    <T::ResponseBody as tonic::codegen::Body>::Error: Into<tonic::codegen::StdError> + Send,
-{
-    let tasks = missions
-        .list_tasks(pb::ListTasksRequest { mission_id, limit: 100_000, ..Default::default() })
-        .await
-        .map_err(|status| SimError::Rpc { what: "ListTasks", status })?
-        .into_inner()
-        .tasks;
-    let robots = missions
-        .list_robots(pb::ListRobotsRequest { mission_id })
-        .await
-        .map_err(|status| SimError::Rpc { what: "ListRobots", status })?
-        .into_inner()
-        .robots;
+async fn fault_record(missions: &Missions, mission_id: u64, budget: Duration) -> Result<FaultRecord, SimError> {
+    let tasks = ask(missions, "ListTasks", budget, |mut m| async move {
+        m.list_tasks(pb::ListTasksRequest { mission_id, limit: 100_000, ..Default::default() }).await
+    })
+    .await?
+    .tasks;
+    let robots = ask(missions, "ListRobots", budget, |mut m| async move {
+        m.list_robots(pb::ListRobotsRequest { mission_id }).await
+    })
+    .await?
+    .robots;
     let mut record = FaultRecord::default();
     for task in &tasks {
         let state = pb::TaskState::try_from(task.state)

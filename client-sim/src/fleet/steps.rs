@@ -3,14 +3,14 @@
 //! answers; after each step the run records its coverage and decides
 //! whether to go on.
 
-use std::collections::{BTreeMap, HashSet};
+use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use exploration::grid::Cell;
 use exploration::rng::SplitMix64;
 
 use super::{FromExecutive, RunConfig, RunReport, SimError};
-use crate::robot::{SimRobot, TeamMap};
+use crate::robot::{Occupancy, SimRobot, TeamMap};
 use crate::world::World;
 
 /// Coverage levels of the milestones t50, t90, t95, t100.
@@ -121,7 +121,7 @@ impl Exploration {
         }
         let mut outcome = StepOutcome::default();
         let cells: Vec<Cell> = robots.iter().map(|r| r.cell).collect();
-        let mut occupied: HashSet<Cell> = cells.iter().copied().collect();
+        let mut occupied = Occupancy::of(cells.iter().copied());
         for i in 0..robots.len() {
             let robot = &mut robots[i];
             // Interference: a move near another robot succeeds with probability p.

@@ -2,7 +2,7 @@
 //! true world), the map it keeps and shares with peers in range, the patch
 //! of new cells it reports, and the way around a robot in its path.
 
-use std::collections::HashSet;
+use std::collections::HashMap;
 
 use exploration::cost::{TraversalMap, shortest_path};
 use exploration::grid::{Cell, CellClass, CellRect, GridFrame, OccupancyGrid};
@@ -43,23 +43,60 @@ impl TeamMap {
     }
 }
 
+/// The cells the robots stand on, counted: two robots squeezing past each
+/// other share a cell for a step.
+#[derive(Debug, Clone, Default)]
+pub struct Occupancy(HashMap<Cell, u32>);
+
+impl Occupancy {
+    /// The robots' cells.
+    pub fn of(cells: impl IntoIterator<Item = Cell>) -> Self {
+        let mut occupancy = Self::default();
+        for cell in cells {
+            occupancy.enter(cell);
+        }
+        occupancy
+    }
+
+    /// Whether a robot stands on `cell`.
+    pub fn is_taken(&self, cell: Cell) -> bool {
+        self.0.contains_key(&cell)
+    }
+
+    /// A robot moves from `from` to `to`.
+    pub fn step(&mut self, from: Cell, to: Cell) {
+        if let Some(n) = self.0.get_mut(&from) {
+            *n -= 1;
+            if *n == 0 {
+                self.0.remove(&from);
+            }
+        }
+        self.enter(to);
+    }
+
+    fn enter(&mut self, cell: Cell) {
+        *self.0.entry(cell).or_default() += 1;
+    }
+}
+
 impl SimRobot {
     /// A path to the task's target around the cells other robots stand on,
-    /// when there is one; otherwise the robot keeps waiting on its path.
-    pub(super) fn detour(&mut self, world: &World, team: &TeamMap, occupied: &HashSet<Cell>) {
-        let Some(task) = self.task else { return };
+    /// when there is one (then true); otherwise the robot keeps waiting on
+    /// its path.
+    pub(super) fn detour(&mut self, world: &World, team: &TeamMap, occupied: &Occupancy) -> bool {
+        let Some(task) = self.task else { return false };
         let map = if self.limited { &self.own } else { &team.grid };
-        let free = |c: Cell| !occupied.contains(&c) || c == self.cell;
+        let free = |c: Cell| !occupied.is_taken(c) || c == self.cell;
         let path = if self.capabilities.footprint_radius_m > 0.0 {
             let traversal = TraversalMap::free_space(map, self.capabilities.footprint_radius_m);
             shortest_path(&world.frame, self.cell, task.target, |c| traversal.passable(c) && free(c))
         } else {
             shortest_path(&world.frame, self.cell, task.target, |c| map.class(c) == CellClass::Free && free(c))
         };
-        if let Some(path) = path {
-            self.path = path.into_iter().skip(1).collect();
-            self.waited = 0;
-        }
+        let Some(path) = path else { return false };
+        self.path = path.into_iter().skip(1).collect();
+        self.waited = 0;
+        true
     }
 
     /// Senses from the current cell into its map, its log and the team's map.

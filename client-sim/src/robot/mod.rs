@@ -21,7 +21,7 @@
 //! `body.rs`: sensing, the maps it keeps and shares, the way around others;
 //! `link.rs`: its gRPC client, assignment stream and retries.
 
-use std::collections::{HashSet, VecDeque};
+use std::collections::VecDeque;
 use std::time::Duration;
 
 use tokio::sync::watch;
@@ -41,7 +41,7 @@ use crate::world::World;
 mod body;
 mod link;
 
-pub use body::TeamMap;
+pub use body::{Occupancy, TeamMap};
 pub(crate) use link::retry;
 
 /// The speed at which a robot moves one cell per step.
@@ -179,6 +179,10 @@ pub struct SimRobot {
 /// Steps a robot waits for another in its way before it goes around it.
 const WAIT_BEFORE_DETOUR: u32 = 3;
 
+/// Steps a robot waits for another in its way, with no way around it,
+/// before the two squeeze past each other.
+const WAIT_BEFORE_SQUEEZING_PAST: u32 = 10;
+
 /// How a robot bids (Simmons et al. 2000, §4.1), when its mission's policy wants bids.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Bidding {
@@ -204,16 +208,15 @@ impl SimRobot {
         self.faults.dies_at.is_some_and(|s| self.steps >= s)
     }
 
-    /// One time step: move (unless `blocked`: interference), sense, report,
-    /// adopt the assignment.
-    /// One step: move (into free cells no other robot stands on; `occupied`
-    /// holds the team's cells and is kept up to date), sense, report.
+    /// One step: move (unless `blocked`: interference) into free cells no
+    /// other robot stands on (`occupied` holds the team's cells and is kept
+    /// up to date), sense, report, adopt the assignment.
     pub async fn step(
         &mut self,
         world: &World,
         team: &mut TeamMap,
         blocked: bool,
-        occupied: &mut HashSet<Cell>,
+        occupied: &mut Occupancy,
     ) -> Result<StepOutcome, RobotError> {
         let mut outcome = StepOutcome::default();
         self.steps += 1;
@@ -238,18 +241,20 @@ impl SimRobot {
                 self.path.clear();
                 break;
             }
-            if occupied.contains(&next) {
-                // Another robot stands there: wait, and after a while go around it.
+            if occupied.is_taken(next) {
+                // Another robot stands there: wait, after a while go around
+                // it, and where there is no way around (two robots head-on
+                // in a corridor one cell wide) squeeze past it in the end, as
+                // robots negotiate passing; otherwise both would wait forever.
                 self.waited += 1;
-                if self.waited >= WAIT_BEFORE_DETOUR {
-                    self.detour(world, team, occupied);
+                let around = self.waited >= WAIT_BEFORE_DETOUR && self.detour(world, team, occupied);
+                if around || self.waited < WAIT_BEFORE_SQUEEZING_PAST {
+                    break;
                 }
-                break;
             }
             self.path.pop_front();
             self.waited = 0;
-            occupied.remove(&self.cell);
-            occupied.insert(next);
+            occupied.step(self.cell, next);
             let (dx, dy) = (next.x - self.cell.x, next.y - self.cell.y);
             self.heading = f64::from(dy).atan2(f64::from(dx));
             self.distance_m += self.cell.distance(next) * world.frame.resolution;
