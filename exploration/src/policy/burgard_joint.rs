@@ -373,7 +373,7 @@ impl Policy for BurgardJoint {
 mod tests {
     use super::*;
     use crate::grid::testing::grid_from_picture;
-    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
+    use crate::policy::testing::{plan_targets, plan_with_defaults, robot, with_input};
 
     fn joint(exact_limit: u64) -> BurgardJoint {
         BurgardJoint {
@@ -459,19 +459,9 @@ mod tests {
                 let policy = BurgardJoint { exact_limit: 10u64.pow(limit), ..joint(1) };
                 let algorithm_1 = plan_targets(&policy.burgard, &grid, &robots);
                 let algorithm_2 = plan_targets(&policy, &grid, &robots);
-                let frontier = crate::frontier::FrontierMap::detect(&grid);
-                let clusters = crate::frontier::clusters(&frontier, 1);
-                let bids = vec![Vec::new(); robots.len()];
-                let input = PlanningInput {
-                    grid: &grid,
-                    clusters: &clusters,
-                    robots: &robots,
-                    threads: 1,
-                    bids: &bids,
-                    seed: 7,
-                    reserved: &[],
-                };
-                let (one, two) = (policy.objective_of(&input, &algorithm_1), policy.objective_of(&input, &algorithm_2));
+                let (one, two) = with_input(&grid, &robots, &vec![Vec::new(); robots.len()], |input| {
+                    (policy.objective_of(input, &algorithm_1), policy.objective_of(input, &algorithm_2))
+                });
                 prop_assert!(two >= one - 1e-9, "Algorithm 2 {two} below Algorithm 1 {one}");
                 Ok(())
             })

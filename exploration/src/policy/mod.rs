@@ -418,15 +418,24 @@ pub(crate) mod testing {
 
     /// Runs a policy on a grid and returns each robot's target cell.
     pub fn plan_targets(policy: &dyn Policy, grid: &OccupancyGrid, robots: &[RobotView]) -> Vec<Option<Cell>> {
-        let frontier = FrontierMap::detect(grid);
-        let clusters = clusters(&frontier, 1);
-        let bids = vec![Vec::new(); robots.len()];
-        let input =
-            PlanningInput { grid, clusters: &clusters, robots, threads: 1, bids: &bids, seed: 7, reserved: &[] };
-        let mut cache = CostCache::new(grid);
-        let plan = policy.plan(&input, &mut cache);
+        let plan = with_input(grid, robots, &vec![Vec::new(); robots.len()], |input| {
+            policy.plan(input, &mut CostCache::new(grid))
+        });
         assert_eq!(plan.targets.len(), robots.len());
         plan.targets.iter().map(|t| t.map(|t| t.cell)).collect()
+    }
+
+    /// Runs `f` on the input a mission would plan from: this grid's
+    /// frontier clusters, these robots and their bids, one thread.
+    pub fn with_input<R>(
+        grid: &OccupancyGrid,
+        robots: &[RobotView],
+        bids: &[Vec<Bid>],
+        f: impl FnOnce(&PlanningInput<'_>) -> R,
+    ) -> R {
+        let frontier = FrontierMap::detect(grid);
+        let clusters = clusters(&frontier, 1);
+        f(&PlanningInput { grid, clusters: &clusters, robots, threads: 1, bids, seed: 7, reserved: &[] })
     }
 }
 

@@ -368,9 +368,8 @@ impl Simmons {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frontier::{FrontierMap, clusters};
     use crate::grid::testing::grid_from_picture;
-    use crate::policy::testing::{plan_with_defaults, robot};
+    use crate::policy::testing::{plan_with_defaults, robot, with_input};
     use crate::policy::{CurrentTask, RobotView};
 
     fn simmons() -> Simmons {
@@ -378,12 +377,9 @@ mod tests {
     }
 
     fn plan(policy: &Simmons, grid: &OccupancyGrid, robots: &[RobotView]) -> Vec<Option<Target>> {
-        let frontier = FrontierMap::detect(grid);
-        let clusters = clusters(&frontier, 1);
-        let bids = vec![Vec::new(); robots.len()];
-        let input =
-            PlanningInput { grid, clusters: &clusters, robots, threads: 1, bids: &bids, seed: 0, reserved: &[] };
-        policy.plan(&input, &mut CostCache::new(grid)).targets
+        with_input(grid, robots, &vec![Vec::new(); robots.len()], |input| {
+            policy.plan(input, &mut CostCache::new(grid)).targets
+        })
     }
 
     #[test]
@@ -481,18 +477,8 @@ mod tests {
         let bid =
             |x| Bid { target: Cell::new(x, 1), path_cost_m: 0.1, information_gain: 100.0, gain_region: everywhere };
         let bids = vec![vec![bid(1)], vec![bid(3)]];
-        let frontier = FrontierMap::detect(&grid);
-        let clusters = clusters(&frontier, 1);
-        let input = PlanningInput {
-            grid: &grid,
-            clusters: &clusters,
-            robots: &robots,
-            threads: 1,
-            bids: &bids,
-            seed: 0,
-            reserved: &[],
-        };
-        let targets = simmons().plan(&input, &mut CostCache::new(&grid)).targets;
+        let targets =
+            with_input(&grid, &robots, &bids, |input| simmons().plan(input, &mut CostCache::new(&grid)).targets);
         // The first region covers the whole map, so the second bid is fully discounted.
         assert_eq!(targets.iter().filter(|t| t.is_some()).count(), 1, "{targets:?}");
     }
