@@ -281,13 +281,16 @@ fn read_curves(out: &Path) -> Result<Vec<(String, Vec<f32>)>, ExperimentError> {
 /// and p99 of each call, milliseconds on a log axis (a sweep spans from a
 /// few milliseconds to seconds past saturation). Returns the files written.
 pub fn draw_load_sweep(reports: &[serde_json::Value], base: &Path) -> Result<Vec<PathBuf>, ExperimentError> {
+    // Figures a load run can give: a hand-edited report with absurd ones
+    // would make the axes unbounded (plotters then never finishes its ticks).
+    let plausible = |v: f64| v.is_finite() && (0.0..=1e9).contains(&v);
     let mut series: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
     for report in reports {
-        let Some(offered) = report["offered_per_s"].as_f64() else { continue };
+        let Some(offered) = report["offered_per_s"].as_f64().filter(|v| plausible(*v)) else { continue };
         let Some(calls) = report["calls"].as_object() else { continue };
         for (call, figures) in calls {
             for quantile in ["p50", "p99"] {
-                if let Some(ms) = figures["latency_ms"][quantile].as_f64() {
+                if let Some(ms) = figures["latency_ms"][quantile].as_f64().filter(|v| plausible(*v)) {
                     series.entry(format!("{call} {quantile}")).or_default().push((offered, ms.max(0.01)));
                 }
             }
