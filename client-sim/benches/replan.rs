@@ -117,6 +117,7 @@ fn replan(c: &mut Criterion) {
                 bids: &bids,
                 seed: 1,
                 reserved: &[],
+                rooms: None,
             };
             group.bench_function(format!("{} {n} robots", descriptor.name), |b| {
                 b.iter(|| policy.plan(&input, &mut CostCache::new(&grid)))

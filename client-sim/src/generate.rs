@@ -104,6 +104,8 @@ pub fn generate(
     let mut canvas = Canvas::new(width_m, height_m, cell);
     let mut rng = SplitMix64::new(seed ^ 0x6765_6E65_7261_7465);
     let (w, h) = (canvas.frame.width as i32, canvas.frame.height as i32);
+    // Where the generator knows doors: which cells they may be in (the office's corridor walls).
+    let mut door_band = None;
     match generator {
         Generator::Empty => {}
         Generator::Unstructured { density } => {
@@ -129,7 +131,8 @@ pub fn generate(
             }
         }
         Generator::Office => {
-            // A corridor along the middle of the long side, rooms off both sides.
+            // A corridor along the middle of the long side, rooms off both sides:
+            // the rooms are what the corridor walls (with their doors) enclose.
             let wall = canvas.cells(0.15);
             let corridor = canvas.cells(2.0);
             let door = canvas.cells(0.9);
@@ -162,6 +165,11 @@ pub fn generate(
                 }
                 x = next;
             }
+            let in_corridor_wall = move |cell: Cell| {
+                let across = if horizontal { cell.y } else { cell.x };
+                (c0 - wall..c0).contains(&across) || (c1..c1 + wall).contains(&across)
+            };
+            door_band = Some(in_corridor_wall);
         }
         Generator::Corridor => {
             // Solid blocks between a grid of corridors.
@@ -219,7 +227,10 @@ pub fn generate(
         }
     }
     let name = generator.name();
-    World::from_blocked(&name, canvas.frame, canvas.blocked, start, seed)
+    let rooms = door_band.map(|is_door| crate::world::rooms_behind_doors(&canvas.frame, &canvas.blocked, is_door));
+    let mut world = World::from_blocked(&name, canvas.frame, canvas.blocked, start, seed)?;
+    world.rooms = rooms;
+    Ok(world)
 }
 
 #[cfg(test)]
@@ -251,5 +262,32 @@ mod tests {
             u.blocked.iter().filter(|b| **b).count() as f64 - 2.0 * f64::from(u.frame.width + u.frame.height) + 4.0;
         assert!((walls / inner - 0.15).abs() < 0.02, "density {}", walls / inner);
         assert!(Generator::parse("lava").is_none());
+    }
+
+    /// The office's rooms are the generator's own: the corridor, and one
+    /// room per door-bounded space off it; every free cell is in one.
+    #[test]
+    fn an_office_knows_its_rooms() {
+        let office = generate(Generator::Office, 25.0, 20.0, 0.15, 3, StartChoice::Auto).unwrap();
+        let rooms = office.given_rooms();
+        assert_eq!(rooms.len(), office.frame.len());
+        for (i, &blocked) in office.blocked.iter().enumerate() {
+            assert_eq!(rooms[i] == 0, blocked, "cell {:?}", office.frame.cell(i));
+        }
+        let mut labels: Vec<u32> = rooms.iter().copied().filter(|&l| l != 0).collect();
+        labels.sort_unstable();
+        labels.dedup();
+        // 25 m of 4–6.7 m rooms on each side: 8 to 14 rooms, and the corridor.
+        assert!((9..=15).contains(&labels.len()), "{} rooms", labels.len());
+        // The corridor (along the middle of the long side) is one room from end to end.
+        let y = office.frame.height as i32 / 2;
+        let corridor = rooms[office.frame.index(Cell::new(1, y))];
+        let along: Vec<u32> =
+            (1..office.frame.width as i32 - 1).map(|x| rooms[office.frame.index(Cell::new(x, y))]).collect();
+        assert!(along.iter().all(|&l| l == corridor), "{along:?}");
+        // Worlds without known rooms get the segmentation of the complete map.
+        let maze = generate(Generator::Maze { corridor_m: 1.2 }, 10.0, 10.0, 0.15, 3, StartChoice::Auto).unwrap();
+        assert!(maze.rooms.is_none());
+        assert!(maze.given_rooms().iter().any(|&l| l != 0));
     }
 }

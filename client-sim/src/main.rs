@@ -293,6 +293,12 @@ struct RunArgs {
     /// is back at its start (or the mission's rendezvous).
     #[arg(long)]
     return_home: bool,
+    /// Give the mission the world's rooms and corridors (the office
+    /// generator's own, or the segmentation of the complete map), as Wurm
+    /// et al. 2008 did in simulation; the `segmentation` policy then plans
+    /// on them instead of segmenting the explored map online.
+    #[arg(long)]
+    given_segmentation: bool,
 }
 
 fn parse_at_step(s: &str) -> Result<(usize, u64), String> {
@@ -450,6 +456,7 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
     config.stall_s = args.stall;
     config.pace = (args.pace_ms > 0).then(|| Duration::from_millis(args.pace_ms));
     config.return_home = args.return_home;
+    config.given_segmentation = args.given_segmentation;
     config.faults = args
         .kills
         .iter()

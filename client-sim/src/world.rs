@@ -11,9 +11,10 @@
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 
-use exploration::grid::{Cell, GridFrame, NEIGHBOURS_8};
+use exploration::grid::{Cell, GridFrame, NEIGHBOURS_8, OccupancyGrid};
 use exploration::math::Point2;
 use exploration::rng::SplitMix64;
+use exploration::segment::{DEFAULT_MIN_DROP_M, DEFAULT_MIN_SEGMENT_M2, segment_complete};
 
 /// Why a map could not be loaded.
 #[derive(Debug, thiserror::Error)]
@@ -125,6 +126,9 @@ pub struct World {
     pub reachable_cells: usize,
     /// Where the world came from.
     pub name: String,
+    /// Its rooms and corridors, where whoever made it knows them (the
+    /// office generator): a label per cell from 1, 0 on walls.
+    pub rooms: Option<Vec<u32>>,
 }
 
 /// Where the robots start.
@@ -240,7 +244,24 @@ impl World {
         };
         let reachable = reachable_from(&frame, &blocked, start);
         let reachable_cells = reachable.iter().filter(|&&r| r).count();
-        Ok(Self { frame, blocked, start, reachable, reachable_cells, name: name.to_owned() })
+        Ok(Self { frame, blocked, start, reachable, reachable_cells, name: name.to_owned(), rooms: None })
+    }
+
+    /// Its rooms and corridors as a mission that plans on a given
+    /// segmentation gets them (Wurm et al. 2008, §VI: "we assumed a given
+    /// segmentation of the environment into rooms and corridors"): the
+    /// generator's own where it made rooms, otherwise the segmentation of
+    /// the complete map with the `segmentation` policy's defaults. A label
+    /// per cell from 1, 0 where no robot can be.
+    pub fn given_rooms(&self) -> Vec<u32> {
+        if let Some(rooms) = &self.rooms {
+            return rooms.clone();
+        }
+        let cells = self.reachable.iter().map(|&free| if free { 0 } else { 100 }).collect();
+        let grid = OccupancyGrid::from_cells(self.frame, cells);
+        let r = self.frame.resolution;
+        let min_cells = (DEFAULT_MIN_SEGMENT_M2 / (r * r)).ceil() as usize;
+        segment_complete(&grid, DEFAULT_MIN_DROP_M / r, min_cells).labels
     }
 
     /// Whether a cell is a wall; cells off the grid are.
@@ -276,6 +297,30 @@ pub fn reachable_from(frame: &GridFrame, blocked: &[bool], start: Cell) -> Vec<b
 }
 
 /// 4-connected components of free cells.
+/// The rooms of a world whose doors are known: the free cells split with
+/// the doors closed, then each door cell joined to a room beside it. A label
+/// per cell from 1, 0 on walls.
+pub(crate) fn rooms_behind_doors(frame: &GridFrame, blocked: &[bool], is_door: impl Fn(Cell) -> bool) -> Vec<u32> {
+    let closed: Vec<bool> = (0..frame.len()).map(|i| blocked[i] || is_door(frame.cell(i))).collect();
+    let components = Components::label(frame, &closed);
+    let mut rooms: Vec<u32> = components.label.iter().map(|&l| if l == u32::MAX { 0 } else { l + 1 }).collect();
+    let mut queue: VecDeque<usize> = (0..frame.len()).filter(|&i| rooms[i] != 0).collect();
+    while let Some(i) = queue.pop_front() {
+        let c = frame.cell(i);
+        for (dx, dy) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+            let n = Cell::new(c.x + dx, c.y + dy);
+            if frame.contains(n) {
+                let j = frame.index(n);
+                if !blocked[j] && rooms[j] == 0 {
+                    rooms[j] = rooms[i];
+                    queue.push_back(j);
+                }
+            }
+        }
+    }
+    rooms
+}
+
 struct Components {
     label: Vec<u32>,
     sizes: Vec<usize>,

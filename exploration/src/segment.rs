@@ -19,6 +19,8 @@
 //!   (Felzenszwalb & Huttenlocher 2012), linear time.
 //! - [`skeletonize`]: distance-ordered homotopic thinning (Pudney 1998).
 //! - [`segment`]: critical points and segments of an occupancy grid.
+//! - [`segment_complete`]: the same for a finished map, every passage cut.
+//! - [`given`]: the segments of rooms given with the mission.
 
 use std::collections::VecDeque;
 
@@ -330,6 +332,40 @@ impl Segmentation {
 ///
 /// Complexity: O(W·H), plus a short walk along the skeleton per local minimum.
 pub fn segment(grid: &OccupancyGrid, frontier: &[Cell], min_drop: f64, min_cells: usize) -> Segmentation {
+    segment_keeping(grid, frontier, min_drop, min_cells, Cuts::IntoUnknown)
+}
+
+/// The `segmentation` policy's default for how far a critical point's
+/// clearance lies below both its sides, metres.
+pub const DEFAULT_MIN_DROP_M: f64 = 0.2;
+/// The `segmentation` policy's default for the smallest segment, square
+/// metres (smaller ones merge into a neighbour).
+pub const DEFAULT_MIN_SEGMENT_M2: f64 = 1.0;
+
+/// Segments a completely known map: as [`segment`], but every narrow
+/// passage cuts, since no frontier tells which ones lead somewhere new. The
+/// rooms and corridors of a building whose map is finished, for missions
+/// that plan on a given segmentation (Wurm et al. 2008, §VI).
+pub fn segment_complete(grid: &OccupancyGrid, min_drop: f64, min_cells: usize) -> Segmentation {
+    segment_keeping(grid, &[], min_drop, min_cells, Cuts::All)
+}
+
+/// Which critical points cut the free space.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Cuts {
+    /// Those beside a segment that holds frontier (the online segmentation).
+    IntoUnknown,
+    /// All of them (a completely known map).
+    All,
+}
+
+fn segment_keeping(
+    grid: &OccupancyGrid,
+    frontier: &[Cell],
+    min_drop: f64,
+    min_cells: usize,
+    cuts: Cuts,
+) -> Segmentation {
     let frame = *grid.frame();
     let (w, h) = (frame.width as usize, frame.height as usize);
     let free: Vec<bool> = grid.cells().iter().map(|&v| crate::grid::classify(v) == CellClass::Free).collect();
@@ -427,27 +463,90 @@ pub fn segment(grid: &OccupancyGrid, frontier: &[Cell], min_drop: f64, min_cells
         }
     }
     let candidates = chosen;
-    let mut frontier_mask = vec![false; w * h];
-    for c in frontier {
-        if frame.contains(*c) {
-            frontier_mask[frame.index(*c)] = true;
-        }
-    }
+    let frontier_mask = mask_of(&frame, frontier);
     // Cut at every candidate, then keep only the cuts that lead into unknown space.
     let first = split(&frame, &free, &candidates, &frontier_mask, min_cells);
     let kept: Vec<CriticalPoint> = candidates
         .iter()
         .filter(|cp| {
-            first.adjacent_labels(cp).iter().any(|&l| first.frontier_counts.get(l as usize).copied().unwrap_or(0) > 0)
+            cuts == Cuts::All
+                || first
+                    .adjacent_labels(cp)
+                    .iter()
+                    .any(|&l| first.frontier_counts.get(l as usize).copied().unwrap_or(0) > 0)
         })
         .copied()
         .collect();
     let final_split =
         if kept.len() == candidates.len() { first } else { split(&frame, &free, &kept, &frontier_mask, min_cells) };
-    let mut segments: Vec<Segment> = (1..final_split.count as u32 + 1)
+    let segments = segments_of(&frame, &final_split.labels, final_split.count, &frontier_mask);
+    Segmentation { frame, labels: final_split.labels, segments, critical_points: kept }
+}
+
+/// The segmentation of what `grid` knows by rooms given with the mission
+/// (Wurm et al. 2008, §VI: "we assumed a given segmentation of the
+/// environment into rooms and corridors in our simulation experiments").
+/// `rooms` holds one label per cell of the grid's frame, row-major, 0 for
+/// none.
+///
+/// A segment is a given room as far as it is known: the known free cells
+/// with its label, renumbered densely from 1 in the order of the given
+/// labels. Frontier cells that no room covers form one segment of their
+/// own, so no frontier is lost to a gap in the labels. `None` when `rooms`
+/// does not hold one label per cell.
+pub fn given(grid: &OccupancyGrid, rooms: &[u32], frontier: &[Cell]) -> Option<Segmentation> {
+    let frame = *grid.frame();
+    if rooms.len() != frame.len() {
+        return None;
+    }
+    let frontier_mask = mask_of(&frame, frontier);
+    // Keys above every u32 label stand for "frontier outside any room".
+    const OUTSIDE: u64 = 1 << 32;
+    let key = |i: usize| -> Option<u64> {
+        let in_space = frontier_mask[i] || crate::grid::classify(grid.cells()[i]) == CellClass::Free;
+        match rooms[i] {
+            _ if !in_space => None,
+            0 if frontier_mask[i] => Some(OUTSIDE),
+            0 => None,
+            room => Some(u64::from(room)),
+        }
+    };
+    let mut keys: Vec<u64> = Vec::new();
+    let mut last = None;
+    for i in 0..frame.len() {
+        let k = key(i);
+        if k.is_some() && k != last {
+            keys.extend(k);
+        }
+        last = k;
+    }
+    keys.sort_unstable();
+    keys.dedup();
+    let labels: Vec<u32> = (0..frame.len())
+        .map(|i| key(i).map_or(0, |k| keys.binary_search(&k).map_or(0, |position| position as u32 + 1)))
+        .collect();
+    let segments = segments_of(&frame, &labels, keys.len(), &frontier_mask);
+    Some(Segmentation { frame, labels, segments, critical_points: Vec::new() })
+}
+
+/// A mask of `cells` over `frame`; cells off the frame are left out.
+fn mask_of(frame: &GridFrame, cells: &[Cell]) -> Vec<bool> {
+    let mut mask = vec![false; frame.len()];
+    for c in cells {
+        if frame.contains(*c) {
+            mask[frame.index(*c)] = true;
+        }
+    }
+    mask
+}
+
+/// The segments `1..=count` of dense `labels`: their cells, bounds and
+/// frontier cells.
+fn segments_of(frame: &GridFrame, labels: &[u32], count: usize, frontier_mask: &[bool]) -> Vec<Segment> {
+    let mut segments: Vec<Segment> = (1..count as u32 + 1)
         .map(|id| Segment { id, cells: 0, bounds: CellRect::new(0, 0, 0, 0), frontier: Vec::new() })
         .collect();
-    for (i, &label) in final_split.labels.iter().enumerate() {
+    for (i, &label) in labels.iter().enumerate() {
         if label == 0 {
             continue;
         }
@@ -459,7 +558,7 @@ pub fn segment(grid: &OccupancyGrid, frontier: &[Cell], min_drop: f64, min_cells
             s.frontier.push(cell);
         }
     }
-    Segmentation { frame, labels: final_split.labels, segments, critical_points: kept }
+    segments
 }
 
 struct Split {
@@ -698,5 +797,39 @@ mod tests {
         let s = segment(&grid, &[], 1.0, 4);
         assert_eq!(s.segments.len(), 1);
         assert!(s.critical_points.is_empty());
+        // A finished map keeps every cut: the two rooms.
+        let complete = segment_complete(&grid, 1.0, 4);
+        assert_eq!(complete.segments.len(), 2, "{:?}", complete.critical_points);
+        assert_ne!(complete.segment_of(Cell::new(2, 4)), complete.segment_of(Cell::new(15, 4)));
+    }
+
+    #[test]
+    fn given_rooms_are_renumbered_and_frontier_outside_them_is_kept() {
+        let grid = grid_from_picture(&[
+            "#########", //
+            "?.......?", //
+            "#########", //
+        ]);
+        let frame = *grid.frame();
+        // Rooms 7 (x < 4) and 3 (4 ≤ x < 7); the right end's cells carry no room.
+        let rooms: Vec<u32> = (0..frame.len())
+            .map(|i| match frame.cell(i).x {
+                0..4 => 7,
+                4..7 => 3,
+                _ => 0,
+            })
+            .collect();
+        let frontier = crate::frontier::FrontierMap::detect(&grid).cells();
+        let s = given(&grid, &rooms, &frontier).unwrap();
+        // In the order of the given labels: room 3, room 7, then the frontier outside.
+        assert_eq!(s.segment_of(Cell::new(5, 1)), Some(1));
+        assert_eq!(s.segment_of(Cell::new(2, 1)), Some(2));
+        assert_eq!(s.segment_of(Cell::new(7, 1)), Some(3), "the right end's frontier is a segment of its own");
+        assert_eq!(s.segment_of(Cell::new(6, 1)), Some(1));
+        assert_eq!(s.segments.len(), 3);
+        let in_segments: usize = s.segments.iter().map(|seg| seg.frontier.len()).sum();
+        assert_eq!(in_segments, frontier.len(), "every frontier cell is in a segment");
+        assert_eq!(s.segment_of(Cell::new(0, 0)), None, "walls belong to no segment");
+        assert!(given(&grid, &rooms[1..], &frontier).is_none());
     }
 }

@@ -17,6 +17,47 @@ pub mod v1 {
 /// patches, a whole 25-million-cell map with its frontier.
 pub const MAX_MESSAGE_BYTES: usize = 64 * 1024 * 1024;
 
+/// Per-cell labels as run-length pairs: (label, run length), each a
+/// little-endian `u32`, row-major. The wire form of
+/// `SetGivenSegmentationRequest.label_runs`, and how the store keeps labels.
+pub mod label_runs {
+    /// The runs of `labels`.
+    pub fn encode(labels: &[u32]) -> Vec<u8> {
+        let mut out = Vec::new();
+        let mut rest = labels;
+        while let Some(&label) = rest.first() {
+            let run = rest.iter().take_while(|&&l| l == label).count().min(u32::MAX as usize);
+            out.extend_from_slice(&label.to_le_bytes());
+            out.extend_from_slice(&(run as u32).to_le_bytes());
+            rest = &rest[run..];
+        }
+        out
+    }
+
+    /// The labels of `len` cells. Runs that are not whole pairs, or that
+    /// add up to anything but `len`, are refused before anything is
+    /// allocated for them; the error says what they hold.
+    pub fn decode(bytes: &[u8], len: usize) -> Result<Vec<u32>, String> {
+        if !bytes.len().is_multiple_of(8) {
+            return Err(format!("hold {} bytes, not (label, run length) pairs of 8", bytes.len()));
+        }
+        let pairs = || {
+            bytes.chunks_exact(8).map(|p| {
+                (u32::from_le_bytes([p[0], p[1], p[2], p[3]]), u32::from_le_bytes([p[4], p[5], p[6], p[7]]) as usize)
+            })
+        };
+        let total: u64 = pairs().map(|(_, run)| run as u64).sum();
+        if total != len as u64 {
+            return Err(format!("cover {total} cells, not the map's {len}"));
+        }
+        let mut labels = Vec::with_capacity(len);
+        for (label, run) in pairs() {
+            labels.extend(std::iter::repeat_n(label, run));
+        }
+        Ok(labels)
+    }
+}
+
 /// Prost's codec, except that a message that is not valid protobuf is
 /// INVALID_ARGUMENT (the sender's error), not INTERNAL.
 pub mod codec {

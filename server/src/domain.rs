@@ -660,5 +660,9 @@ pub struct StoredSegmentation {
     pub segmentation: exploration::segment::Segmentation,
 }
 
+/// Rooms and corridors given with a mission (Wurm et al. 2008, §VI): a
+/// label per cell of its map, row-major, 0 for none.
+pub type Rooms = std::sync::Arc<[u32]>;
+
 /// Policy parameters as given by a client, before validation.
 pub type ParamOverrides = BTreeMap<String, f64>;

@@ -139,6 +139,97 @@ async fn the_segmentation_is_kept_and_served() {
     exec.stop().await;
 }
 
+/// Wurm et al. 2008, §VI: a mission given its rooms plans on them. Through
+/// the real service: fleet-sim gives a generated office its own rooms; the
+/// segmentation served is those rooms as far as they are known (no critical
+/// points, one segment per room); bad label runs are refused and change
+/// nothing; the rooms survive a restart and can be taken back.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_given_segmentation_is_planned_on_kept_and_taken_back() {
+    use client_sim::fleet::WorldSpec;
+    use client_sim::generate::Generator;
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("given.db");
+    let exec = TestExecutive::start(&db).await;
+    let world = WorldSpec::Generated { generator: Generator::Office, width_m: 25.0, height_m: 20.0 };
+    let mut config = RunConfig::on(world.clone(), 2, "segmentation");
+    config.server = Some(exec.url.clone());
+    config.cell_size = Some(0.25);
+    config.max_steps = 80;
+    config.given_segmentation = true;
+    let report = client_sim::run(&config).await.unwrap();
+    let rooms = world.build(config.cell_size, config.start, config.seed).unwrap().given_rooms();
+    let mut missions = exec.missions();
+    let get = |mut missions: pb::missions_client::MissionsClient<_>| async move {
+        missions.get_mission(pb::GetMissionRequest { mission_id: report.mission_id }).await.unwrap().into_inner()
+    };
+    assert!(get(exec.missions()).await.given_segmentation);
+    let served = missions
+        .get_segmentation(pb::GetSegmentationRequest { mission_id: report.mission_id, include_labels: true })
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(served.critical_points.is_empty(), "given rooms are not cut at critical points");
+    let labels: Vec<u32> =
+        served.labels.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+    assert_eq!(labels.len(), rooms.len());
+    // One segment per given room: the served labels and the rooms match one to one.
+    let mut pairs: Vec<(u32, u32)> =
+        labels.iter().zip(&rooms).filter(|(l, _)| **l != 0).map(|(l, r)| (*l, *r)).collect();
+    pairs.sort_unstable();
+    pairs.dedup();
+    assert!(pairs.len() >= 2, "the robots saw more than one room in 80 steps: {pairs:?}");
+    assert!(pairs.windows(2).all(|w| w[0].0 != w[1].0), "a segment spans two rooms: {pairs:?}");
+    let mut by_room: Vec<u32> = pairs.iter().map(|p| p.1).collect();
+    by_room.sort_unstable();
+    assert!(by_room.windows(2).all(|w| w[0] != w[1]), "a room split into segments: {pairs:?}");
+    let events =
+        missions.list_events(pb::ListEventsRequest { mission_id: report.mission_id }).await.unwrap().into_inner();
+    assert!(events.events.iter().any(|e| e.kind == "segmentation_given" && e.actor == "fleet-sim"), "{events:?}");
+
+    // Bad runs are refused, naming the field, and change nothing.
+    let set = |mission_id: u64, label_runs: Vec<u8>| pb::SetGivenSegmentationRequest {
+        mission_id,
+        label_runs,
+        actor: "alice".into(),
+        reason: String::new(),
+    };
+    let cells = rooms.len() as u32;
+    let pair = |label: u32, run: u32| [label.to_le_bytes(), run.to_le_bytes()].concat();
+    for (request, code) in [
+        (set(report.mission_id, vec![1, 2, 3]), Code::InvalidArgument),
+        (set(report.mission_id, pair(1, cells - 1)), Code::InvalidArgument),
+        (set(report.mission_id, [pair(1, u32::MAX), pair(2, u32::MAX)].concat()), Code::InvalidArgument),
+        (set(report.mission_id + 100, pair(1, cells)), Code::NotFound),
+        (set(0, pair(1, cells)), Code::InvalidArgument),
+    ] {
+        let status = missions.set_given_segmentation(request).await.unwrap_err();
+        assert_eq!(status.code(), code, "{status:?}");
+        if code == Code::InvalidArgument {
+            assert!(status.message().contains("label_runs") || status.message().contains("mission_id"), "{status:?}");
+        }
+    }
+    let before = served.segments.len();
+    exec.stop().await;
+
+    // Kept across a restart; then taken back.
+    let exec = TestExecutive::start(&db).await;
+    assert!(get(exec.missions()).await.given_segmentation);
+    let mut missions = exec.missions();
+    let stored = missions
+        .get_segmentation(pb::GetSegmentationRequest { mission_id: report.mission_id, include_labels: false })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(stored.segments.len(), before);
+    let back = missions.set_given_segmentation(set(report.mission_id, Vec::new())).await.unwrap().into_inner();
+    assert!(!back.given_segmentation);
+    exec.stop().await;
+    let exec = TestExecutive::start(&db).await;
+    assert!(!get(exec.missions()).await.given_segmentation);
+    exec.stop().await;
+}
+
 /// Every policy completes missions on the bundled maps with 1, 3 and 8
 /// robots (coarse cells keep the debug build quick; the full matrix at
 /// 0.1 m is `experiments/policy-matrix.toml`).

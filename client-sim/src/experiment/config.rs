@@ -155,6 +155,10 @@ pub struct PolicyEntry {
     /// Parameter overrides.
     #[serde(default)]
     pub params: BTreeMap<String, f64>,
+    /// Give the missions the worlds' rooms and corridors (Wurm et al. 2008,
+    /// §VI) instead of segmenting online.
+    #[serde(default)]
+    pub given_segmentation: bool,
 }
 
 impl PolicyEntry {

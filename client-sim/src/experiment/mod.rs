@@ -112,6 +112,7 @@ fn run_config(
     let sim = &experiment.sim;
     let mut config = RunConfig::on(world_spec, spec.robots, &policy.name);
     config.params = policy.params.clone();
+    config.given_segmentation = policy.given_segmentation;
     config.seed = spec.seed;
     if let Some(server) = server {
         config.server = Some(server.url.clone());

@@ -189,6 +189,10 @@ pub struct RunConfig {
     /// After exploration, keep stepping while the executive sends the robots
     /// home, until every live robot is there (or `max_steps` more steps).
     pub return_home: bool,
+    /// Give the mission the world's rooms and corridors (Wurm et al. 2008,
+    /// §VI; see [`World::given_rooms`]) instead of letting it segment the
+    /// explored map online.
+    pub given_segmentation: bool,
 }
 
 /// The robot of the papers' simulations: 360° sensor of 4 m, point-sized, 0.5 m/s.
@@ -233,6 +237,7 @@ impl RunConfig {
             stall_s: None,
             pace: None,
             return_home: false,
+            given_segmentation: false,
         }
     }
 }
@@ -541,6 +546,9 @@ async fn run_against(
     let started = Instant::now();
     let missions = missions_client(config, url, token)?;
     let mission = create_mission(&missions, config, &world).await?;
+    if config.given_segmentation {
+        give_rooms(&missions, config, &world, mission.id).await?;
+    }
     if config.progress {
         let frame = world.frame;
         eprintln!(
@@ -616,6 +624,22 @@ async fn create_mission(missions: &Missions, config: &RunConfig, world: &World) 
         async move { m.create_mission(request).await }
     })
     .await
+}
+
+/// Gives the mission the world's rooms and corridors.
+async fn give_rooms(missions: &Missions, config: &RunConfig, world: &World, mission_id: u64) -> Result<(), SimError> {
+    let request = pb::SetGivenSegmentationRequest {
+        mission_id,
+        label_runs: exploration_proto::label_runs::encode(&world.given_rooms()),
+        actor: "fleet-sim".to_owned(),
+        reason: format!("the rooms of {}", world.name),
+    };
+    ask(missions, "SetGivenSegmentation", config.retry_budget, |mut m| {
+        let request = request.clone();
+        async move { m.set_given_segmentation(request).await }
+    })
+    .await?;
+    Ok(())
 }
 
 /// Connects and registers every robot on its start cell.

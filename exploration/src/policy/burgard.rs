@@ -246,6 +246,7 @@ mod tests {
                 bids: &[Vec::new(), Vec::new()],
                 seed: 0,
                 reserved: &[],
+                rooms: None,
             };
             let plan = burgard().plan(&input, &mut CostCache::new(&grid));
             let first = plan.targets[0].unwrap();

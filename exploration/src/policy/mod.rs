@@ -116,6 +116,10 @@ pub struct PlanningInput<'a> {
     /// the latest target locations assigned to other robots"), with the
     /// sensor range of the robot holding each.
     pub reserved: &'a [(Cell, f64)],
+    /// Rooms and corridors given with the mission, one label per cell of
+    /// the grid's frame (0 for none), for policies that plan on a
+    /// segmentation (Wurm et al. 2008, §VI).
+    pub rooms: Option<&'a [u32]>,
 }
 
 /// A robot's estimate for one candidate target (Simmons et al. 2000, §4.1).
@@ -435,7 +439,7 @@ pub(crate) mod testing {
     ) -> R {
         let frontier = FrontierMap::detect(grid);
         let clusters = clusters(&frontier, 1);
-        f(&PlanningInput { grid, clusters: &clusters, robots, threads: 1, bids, seed: 7, reserved: &[] })
+        f(&PlanningInput { grid, clusters: &clusters, robots, threads: 1, bids, seed: 7, reserved: &[], rooms: None })
     }
 }
 

@@ -2,7 +2,10 @@
 //!
 //! Wurm, Stachniss & Burgard 2008, Algorithm 1:
 //! 1. segment the explored map (Voronoi graph, critical points; see
-//!    [`crate::segment`]);
+//!    [`crate::segment`]), or, when the mission was given its rooms and
+//!    corridors, take those as far as they are known (§VI: "we assumed a
+//!    given segmentation of the environment into rooms and corridors in our
+//!    simulation experiments"; [`crate::segment::given`]);
 //! 2. the frontier targets of each segment;
 //! 3. the cost C_s^i of segment s for robot i: the path cost to its nearest
 //!    frontier cell,
@@ -21,7 +24,7 @@ use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_MET
 use super::{Plan, PlanningInput, Policy, Target, current_target, free_space_cost_maps};
 use crate::assign::assign_with_dummies;
 use crate::cost::CostCache;
-use crate::segment::segment;
+use crate::segment::{given, segment};
 
 pub(super) const NAME: &str = "segmentation";
 
@@ -29,7 +32,7 @@ pub(super) const NAME: &str = "segmentation";
 /// how it is built from a validated configuration.
 pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
     name: NAME,
-    description: "Wurm et al. 2008, Algorithm 1: Voronoi segmentation of the explored map, Hungarian assignment of robots to segments, then to frontiers inside each segment",
+    description: "Wurm et al. 2008, Algorithm 1: Voronoi segmentation of the explored map (or the rooms given with the mission), Hungarian assignment of robots to segments, then to frontiers inside each segment",
     params: &[
         MIN_FRONTIER_SIZE,
         SWITCH_METRES,
@@ -43,14 +46,14 @@ pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
         ParamSpec {
             name: "min_drop_m",
             description: "a critical point's clearance is at least this much below the passage on both its sides, metres",
-            default: 0.2,
+            default: crate::segment::DEFAULT_MIN_DROP_M,
             min: 0.0,
             max: 10.0,
         },
         ParamSpec {
             name: "min_segment_m2",
             description: "smaller segments merge into a neighbour, square metres",
-            default: 1.0,
+            default: crate::segment::DEFAULT_MIN_SEGMENT_M2,
             min: 0.0,
             max: 10_000.0,
         },
@@ -119,12 +122,14 @@ impl Policy for SegmentationPolicy {
         let resolution = grid.frame().resolution;
         let frontier = input.frontier_cells();
         // Line 1–2: segments and their frontier targets.
-        let segmentation = segment(
-            grid,
-            &frontier,
-            self.min_drop_m / resolution,
-            (self.min_segment_m2 / (resolution * resolution)).ceil() as usize,
-        );
+        let segmentation = input.rooms.and_then(|rooms| given(grid, rooms, &frontier)).unwrap_or_else(|| {
+            segment(
+                grid,
+                &frontier,
+                self.min_drop_m / resolution,
+                (self.min_segment_m2 / (resolution * resolution)).ceil() as usize,
+            )
+        });
         let open: Vec<&crate::segment::Segment> =
             segmentation.segments.iter().filter(|s| !s.frontier.is_empty()).collect();
         let maps = free_space_cost_maps(input, costs);
@@ -193,7 +198,7 @@ mod tests {
     use crate::grid::Cell;
     use crate::grid::testing::grid_from_picture;
     use crate::policy::Greedy;
-    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
+    use crate::policy::testing::{plan_targets, plan_with_defaults, robot, with_input};
 
     /// Wurm et al. 2008, §V: two robots in a corridor, two rooms off it. Room
     /// A has two frontiers (a pillar splits its unexplored part), so the
@@ -228,5 +233,37 @@ mod tests {
         let a = targets.iter().filter(|t| t.is_some_and(in_room_a)).count();
         let b = targets.iter().filter(|t| t.is_some_and(in_room_b)).count();
         assert_eq!((a, b), (1, 1), "segmentation: {targets:?}");
+    }
+
+    /// Wurm et al. 2008, §VI: with rooms given, a hall the online
+    /// segmentation cannot cut (no narrow passage) is two rooms, and the
+    /// robots split between them; online, and under `nearest`, both take
+    /// the near end.
+    #[test]
+    fn given_rooms_split_a_hall_the_online_segmentation_cannot() {
+        let grid = grid_from_picture(&[
+            "######################", //
+            "?....................?", //
+            "?....................?", //
+            "######################", //
+        ]);
+        let robots = [robot(0, Cell::new(3, 1), 1.0), robot(1, Cell::new(4, 2), 1.0)];
+        let frame = *grid.frame();
+        let rooms: Vec<u32> = (0..frame.len()).map(|i| if frame.cell(i).x < 11 { 1 } else { 2 }).collect();
+        let policy =
+            SegmentationPolicy { switch_margin: 0.0, inside_discount: 0.5, min_drop_m: 0.5, min_segment_m2: 1.0 };
+        let far_end = |t: &Option<Cell>| t.is_some_and(|c| c.x > 11);
+        let online = plan_targets(&policy, &grid, &robots);
+        assert_eq!(online.iter().filter(|t| far_end(t)).count(), 0, "online: {online:?}");
+        let nearest = plan_with_defaults("nearest", &grid, &robots);
+        assert_eq!(nearest.iter().filter(|t| far_end(t)).count(), 0, "nearest: {nearest:?}");
+        let plan = with_input(&grid, &robots, &[Vec::new(), Vec::new()], |input| {
+            policy.plan(&PlanningInput { rooms: Some(&rooms), ..*input }, &mut CostCache::new(&grid))
+        });
+        let targets: Vec<Option<Cell>> = plan.targets.iter().map(|t| t.map(|t| t.cell)).collect();
+        assert_eq!(targets.iter().filter(|t| far_end(t)).count(), 1, "given rooms: {targets:?}");
+        let segmentation = plan.segmentation.expect("the plan keeps its segmentation");
+        assert_eq!(segmentation.segments.len(), 2);
+        assert!(segmentation.critical_points.is_empty());
     }
 }

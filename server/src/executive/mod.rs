@@ -142,6 +142,8 @@ pub struct MissionSummary {
     pub frontier_cells: u64,
     /// Its forbidden regions.
     pub forbidden: Vec<Region>,
+    /// Whether it was given its rooms and corridors.
+    pub given_segmentation: bool,
 }
 
 /// A robot with its current target.
@@ -215,6 +217,7 @@ impl Executive {
             let open_tasks = store.open_tasks(id).await?;
             let blacklist = store.blacklist(id).await?;
             let forbidden = store.forbidden_regions(id).await?;
+            let rooms = store.given_segmentation(id).await?;
             tracing::info!(
                 mission = id,
                 robots = robots.len(),
@@ -230,8 +233,11 @@ impl Executive {
                 bids.push((robot.id, store.bids(robot.id).await?));
             }
             total_cells += record.spec.frame.len() as u64;
-            let mut mission =
-                Mission::restore(record, StoredMission { robots, patches, open_tasks, blacklist, forbidden }, now)?;
+            let mut mission = Mission::restore(
+                record,
+                StoredMission { robots, patches, open_tasks, blacklist, forbidden, rooms },
+                now,
+            )?;
             for (robot, robot_bids) in bids {
                 mission.set_bids(robot, &robot_bids);
             }
@@ -304,6 +310,7 @@ impl Executive {
             known_cells: mission.known_cells(),
             frontier_cells: mission.frontier_cells() as u64,
             forbidden: mission.forbidden().to_vec(),
+            given_segmentation: mission.has_rooms(),
         }
     }
 
@@ -614,6 +621,32 @@ impl Executive {
         tracing::info!(mission = mission_id, region = id, actor = %note.actor, "region forbidden");
         self.planner.after_change(&handle, &mut mission).await;
         Ok(region)
+    }
+
+    /// Gives a mission its rooms and corridors (Wurm et al. 2008, §VI) as
+    /// run-length pairs over its map (see [`exploration_proto::label_runs`]),
+    /// or, with none, sends it back to the online segmentation.
+    pub async fn set_given_segmentation(
+        &self,
+        mission_id: MissionId,
+        label_runs: &[u8],
+        note: OperatorNote,
+    ) -> Result<MissionSummary, Error> {
+        let handle = self.mission_handle(mission_id)?;
+        let mut mission = handle.lock().await;
+        let rooms = if label_runs.is_empty() {
+            None
+        } else {
+            let frame = &mission.record().spec.frame;
+            let labels = exploration_proto::label_runs::decode(label_runs, frame.len())
+                .map_err(|e| Error::InvalidArgument(format!("label_runs {e} ({} × {})", frame.width, frame.height)))?;
+            Some(labels)
+        };
+        let changes = mission.prepare_rooms(rooms, &note, Timestamp::now())?;
+        self.commit(&mut mission, changes).await?;
+        tracing::info!(mission = mission_id, actor = %note.actor, given = mission.has_rooms(), "segmentation set");
+        self.planner.after_change(&handle, &mut mission).await;
+        Ok(Self::summary(&mission))
     }
 
     /// Allows a forbidden region again.

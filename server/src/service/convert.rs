@@ -316,6 +316,7 @@ impl From<&MissionSummary> for pb::Mission {
             lifecycle: Some((&r.spec.lifecycle).into()),
             forbidden_regions: m.forbidden.iter().map(region).collect(),
             leftovers: r.leftovers.iter().map(leftover).collect(),
+            given_segmentation: m.given_segmentation,
         }
     }
 }

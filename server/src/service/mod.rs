@@ -290,6 +290,19 @@ impl Missions for ExplorationService {
         Ok(Response::new(convert::region(&region)))
     }
 
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
+    async fn set_given_segmentation(
+        &self,
+        request: Request<pb::SetGivenSegmentationRequest>,
+    ) -> Result<Response<pb::Mission>, Status> {
+        let caller = self.operator(&request, "giving a mission its rooms")?;
+        let r = request.into_inner();
+        let id = required_id(r.mission_id, "mission_id")?;
+        let note = convert::operator_note(&caller, r.actor, r.reason)?;
+        let mission = self.executive.set_given_segmentation(id, &r.label_runs, note).await?;
+        Ok(Response::new(pb::Mission::from(&mission)))
+    }
+
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id, region = request.get_ref().region_id))]
     async fn allow_region(&self, request: Request<pb::AllowRegionRequest>) -> Result<Response<pb::Mission>, Status> {
         let caller = self.operator(&request, "allowing a region")?;

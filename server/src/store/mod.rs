@@ -10,7 +10,7 @@ use async_trait::async_trait;
 
 use crate::domain::{
     Bid, BlacklistEntry, Leftover, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState, Region, RobotId,
-    RobotRecord, RobotSpec, StoredSegmentation, TaskId, TaskKind, TaskRecord, TaskState, Timestamp, Transition,
+    RobotRecord, RobotSpec, Rooms, StoredSegmentation, TaskId, TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
 use exploration::fusion::Patch;
 use exploration::grid::Cell;
@@ -140,6 +140,9 @@ pub struct Changeset {
     pub events: Vec<MissionEvent>,
     /// The mission's new segmentation.
     pub segmentation: Option<(MissionId, StoredSegmentation)>,
+    /// The rooms given with the mission, when they were set (`Some`) or
+    /// cleared (`None`).
+    pub given_segmentation: Option<(MissionId, Option<Rooms>)>,
     /// Targets blacklisted for robots.
     pub blacklisted: Vec<BlacklistEntry>,
     /// Blacklist entries that expired: (robot, cell).
@@ -167,6 +170,7 @@ impl Changeset {
             && self.policy.is_none()
             && self.events.is_empty()
             && self.segmentation.is_none()
+            && self.given_segmentation.is_none()
             && self.blacklisted.is_empty()
             && self.unblacklisted.is_empty()
             && self.forbidden.is_empty()
@@ -252,6 +256,9 @@ pub trait Store: Send + Sync + std::fmt::Debug {
 
     /// A mission's latest segmentation, if one was computed.
     async fn segmentation(&self, mission_id: MissionId) -> Result<Option<StoredSegmentation>, StoreError>;
+
+    /// The rooms given with a mission, if it has them.
+    async fn given_segmentation(&self, mission_id: MissionId) -> Result<Option<Rooms>, StoreError>;
 
     /// Writes a changeset in one transaction (possibly with others): all of
     /// it is durable when this returns it back, none of it when it returns

@@ -32,8 +32,8 @@ use exploration::policy::{Bid as PolicyBid, Policy, PolicyConfig};
 
 use crate::domain::{
     Actor, AssignedTask, Assignment, BY_EXECUTIVE, Bid, Heartbeat, MapUpdate, MissionEvent, MissionRecord,
-    MissionState, Pose, Region, RobotId, RobotRecord, RobotState, TaskId, TaskKind, TaskRecord, TaskState, Timestamp,
-    Transition,
+    MissionState, Pose, Region, RobotId, RobotRecord, RobotState, Rooms, TaskId, TaskKind, TaskRecord, TaskState,
+    Timestamp, Transition,
 };
 use crate::error::Error;
 use crate::store::{Changeset, LoggedPatch, MissionCounters, TaskChange};
@@ -62,6 +62,7 @@ pub(crate) struct StoredMission {
     pub(crate) open_tasks: Vec<TaskRecord>,
     pub(crate) blacklist: Vec<crate::domain::BlacklistEntry>,
     pub(crate) forbidden: Vec<Region>,
+    pub(crate) rooms: Option<Rooms>,
 }
 
 /// A robot and the channel its assignment is pushed on.
@@ -115,6 +116,8 @@ pub(crate) struct Mission {
     explored_tasks: std::collections::HashSet<TaskId>,
     /// Regions where no target is assigned.
     forbidden: Vec<Region>,
+    /// Rooms and corridors given with the mission (Wurm et al. 2008, §VI).
+    rooms: Option<Rooms>,
     /// The last replanning could not be committed: the sweep tries again.
     replan_failed: bool,
     /// Robots whose records changed only by liveness reports since they
@@ -130,7 +133,7 @@ pub(crate) struct Mission {
 impl Mission {
     /// A mission from its stored state: replays the map log, reopens its tasks.
     pub(crate) fn restore(record: MissionRecord, stored: StoredMission, now: Instant) -> Result<Self, Error> {
-        let StoredMission { robots, patches, open_tasks, blacklist, forbidden } = stored;
+        let StoredMission { robots, patches, open_tasks, blacklist, forbidden, rooms } = stored;
         let policy: Arc<dyn Policy> = Arc::from(record.spec.policy.build());
         let mut fusion = MapFusion::new(record.spec.frame);
         let mut known_cells = 0;
@@ -160,6 +163,7 @@ impl Mission {
             demands: 0,
             explored_tasks: std::collections::HashSet::new(),
             forbidden,
+            rooms,
             replan_failed: false,
             unsaved: std::collections::BTreeSet::new(),
             unsaved_in_flight: Vec::new(),
@@ -254,6 +258,11 @@ impl Mission {
     /// The mission's forbidden regions.
     pub(crate) fn forbidden(&self) -> &[Region] {
         &self.forbidden
+    }
+
+    /// Whether the mission was given its rooms and corridors.
+    pub(crate) fn has_rooms(&self) -> bool {
+        self.rooms.is_some()
     }
 
     /// How many targets are blacklisted for a robot.
@@ -657,6 +666,11 @@ impl Mission {
             self.forbidden.extend(changes.forbidden);
             self.structure += 1;
             self.demand_replan("forbidden regions changed".to_owned());
+        }
+        if let Some((_, rooms)) = changes.given_segmentation {
+            self.rooms = rooms;
+            self.structure += 1;
+            self.demand_replan("given segmentation changed".to_owned());
         }
         self.changed.send_modify(|v| *v += 1);
         // Push every assignment whose version moved (after all records are in place).

@@ -10,7 +10,9 @@ use exploration::grid::CellClass;
 use exploration::math::Point2;
 
 use super::{Mission, TaskDraft, transition};
-use crate::domain::{Actor, OperatorNote, Override, Region, RobotId, TaskKind, TaskRecord, TaskState, Timestamp};
+use crate::domain::{
+    Actor, OperatorNote, Override, Region, RobotId, Rooms, TaskKind, TaskRecord, TaskState, Timestamp,
+};
 use crate::error::Error;
 use crate::store::Changeset;
 
@@ -261,6 +263,43 @@ impl Mission {
             ..Changeset::default()
         };
         Ok((changes, region))
+    }
+
+    /// Describes giving the mission its rooms (`Some`, a label per cell of
+    /// its map) or taking them back (`None`).
+    pub(crate) fn prepare_rooms(
+        &self,
+        rooms: Option<Vec<u32>>,
+        note: &OperatorNote,
+        now: Timestamp,
+    ) -> Result<Changeset, Error> {
+        let frame = &self.record.spec.frame;
+        if let Some(labels) = &rooms
+            && labels.len() != frame.len()
+        {
+            return Err(Error::InvalidArgument(format!(
+                "label_runs cover {} cells, not the map's {} × {}",
+                labels.len(),
+                frame.width,
+                frame.height
+            )));
+        }
+        let detail = match &rooms {
+            Some(labels) => {
+                let mut distinct: Vec<u32> = labels.iter().copied().filter(|&l| l != 0).collect();
+                distinct.sort_unstable();
+                distinct.dedup();
+                format!("{} rooms given {}", distinct.len(), note.reason)
+            }
+            None => format!("back to the online segmentation {}", note.reason),
+        };
+        let kind = if rooms.is_some() { "segmentation_given" } else { "segmentation_online" };
+        Ok(Changeset {
+            given_segmentation: Some((self.record.id, rooms.map(Rooms::from))),
+            events: vec![self.event(kind, detail.trim_end().to_owned(), &note.actor, now)],
+            at: Some(now),
+            ..Changeset::default()
+        })
     }
 
     /// Describes allowing a forbidden region again.

@@ -17,8 +17,8 @@ use exploration::policy::{Bid as PolicyBid, CurrentTask, Plan, PlanningInput, Po
 
 use super::{HOME_TOLERANCE_M, Mission, RobotSlot, TaskDraft, lifecycle, transition};
 use crate::domain::{
-    Actor, BY_EXECUTIVE, BY_POLICY, Leftover, MissionState, RobotId, StoredSegmentation, TaskId, TaskKind, TaskState,
-    Timestamp,
+    Actor, BY_EXECUTIVE, BY_POLICY, Leftover, MissionState, RobotId, Rooms, StoredSegmentation, TaskId, TaskKind,
+    TaskState, Timestamp,
 };
 use crate::store::Changeset;
 
@@ -36,6 +36,8 @@ pub(crate) struct PlanningJob {
     expired: Vec<(RobotId, Cell)>,
     min_frontier_size: usize,
     policy: Arc<dyn Policy>,
+    /// The rooms given with the mission, if any.
+    rooms: Option<Rooms>,
     threads: usize,
     seed: u64,
 }
@@ -104,6 +106,7 @@ impl PlanningJob {
                     bids: &part.bids,
                     seed: self.seed,
                     reserved: &part.reserved,
+                    rooms: self.rooms.as_deref(),
                 };
                 let plan = self.policy.plan(&input, cache);
                 for (robot, target) in part.robots.iter().zip(plan.targets) {
@@ -362,6 +365,7 @@ impl Mission {
             expired,
             min_frontier_size: min_size,
             policy: self.policy.clone(),
+            rooms: self.rooms.clone(),
             threads,
             // Randomized policies draw from the mission and its replanning count: reproducible.
             seed: self.record.id.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.record.replans,

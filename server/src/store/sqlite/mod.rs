@@ -21,7 +21,7 @@ use super::lock::StoreLock;
 use super::{Changeset, LoggedPatch, Store, StoreError, TaskFilter};
 use crate::domain::{
     Bid, BlacklistEntry, MissionEvent, MissionId, MissionRecord, MissionSpec, Region, RobotId, RobotRecord, RobotSpec,
-    StoredSegmentation, TaskId, TaskKind, TaskRecord, Timestamp, Transition,
+    Rooms, StoredSegmentation, TaskId, TaskKind, TaskRecord, Timestamp, Transition,
 };
 use rows::At;
 
@@ -364,6 +364,15 @@ impl Store for SqliteStore {
             .fetch_optional(&self.pool)
             .await?;
         row.map(|row| rows::segmentation_from_row(&row, frame)).transpose()
+    }
+
+    async fn given_segmentation(&self, mission_id: MissionId) -> Result<Option<Rooms>, StoreError> {
+        let Some(frame) = self.frame(mission_id).await? else { return Ok(None) };
+        let row = sqlx::query("SELECT * FROM given_segmentations WHERE mission_id = ?1")
+            .bind(mission_id as i64)
+            .fetch_optional(&self.pool)
+            .await?;
+        row.map(|row| rows::rooms_from_row(&row, frame)).transpose()
     }
 
     async fn commit(&self, changes: Changeset) -> Result<Changeset, StoreError> {

@@ -12,8 +12,8 @@ use sqlx::sqlite::SqliteRow;
 
 use crate::domain::{
     Actor, Bid, BlacklistEntry, Leftover, LeftoverReason, LifecycleSettings, MissionEvent, MissionRecord, MissionSpec,
-    MissionState, Pose, Region, ReplanSettings, RobotId, RobotRecord, RobotState, StoredSegmentation, TaskId, TaskKind,
-    TaskRecord, TaskState, Timestamp, Transition,
+    MissionState, Pose, Region, ReplanSettings, RobotId, RobotRecord, RobotState, Rooms, StoredSegmentation, TaskId,
+    TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
 use crate::store::{LoggedPatch, StoreError};
 use crate::validate::{self, Invalid};
@@ -373,39 +373,15 @@ pub(super) fn event_from_row(row: &SqliteRow) -> Result<MissionEvent, StoreError
 }
 
 /// Run-length encoding of labels: (label, run) pairs of little-endian u32.
-pub(super) fn encode_labels(labels: &[u32]) -> Vec<u8> {
-    let mut out = Vec::new();
-    let mut i = 0;
-    while i < labels.len() {
-        let label = labels[i];
-        let run = labels[i..].iter().take_while(|&&l| l == label).count();
-        out.extend_from_slice(&label.to_le_bytes());
-        out.extend_from_slice(&(run as u32).to_le_bytes());
-        i += run;
-    }
-    out
-}
-
 /// The labels of `len` cells; runs that add up to anything else are refused
 /// before anything is allocated for them.
 fn decode_labels(at: At<'_>, bytes: &[u8], len: usize) -> Result<Vec<u32>, StoreError> {
-    if !bytes.len().is_multiple_of(8) {
-        return Err(at.bad(format!("labels hold {} bytes, not (label, run) pairs of 8", bytes.len())));
-    }
-    let pairs = || {
-        bytes.chunks_exact(8).map(|p| {
-            (u32::from_le_bytes([p[0], p[1], p[2], p[3]]), u32::from_le_bytes([p[4], p[5], p[6], p[7]]) as usize)
-        })
-    };
-    let total: u64 = pairs().map(|(_, run)| run as u64).sum();
-    if total != len as u64 {
-        return Err(at.bad(format!("labels hold {total} cells, not the grid's {len}")));
-    }
-    let mut labels = Vec::with_capacity(len);
-    for (label, run) in pairs() {
-        labels.extend(std::iter::repeat_n(label, run));
-    }
-    Ok(labels)
+    exploration_proto::label_runs::decode(bytes, len).map_err(|e| at.bad(format!("labels {e}")))
+}
+
+pub(super) fn rooms_from_row(row: &SqliteRow, frame: GridFrame) -> Result<Rooms, StoreError> {
+    let at = At::row("given_segmentations", row, "mission_id")?;
+    Ok(decode_labels(at, &at.get::<Vec<u8>>(row, "label_runs")?, frame.len())?.into())
 }
 
 pub(super) fn segments_json(segmentation: &Segmentation) -> String {

@@ -87,6 +87,7 @@ async fn a_changeset_round_trips_through_a_real_file() {
     let mut labels = vec![0u32; frame.len()];
     labels[5..40].fill(1);
     labels[100..130].fill(2);
+    let rooms: crate::domain::Rooms = (0..mission.spec.frame.len() as u32).map(|i| i / 7).collect();
     let segmentation = StoredSegmentation {
         computed_at: Timestamp(3_000),
         segmentation: Segmentation {
@@ -143,6 +144,7 @@ async fn a_changeset_round_trips_through_a_real_file() {
                 actor: "ops".into(),
             }],
             segmentation: Some((mission.id, segmentation.clone())),
+            given_segmentation: Some((mission.id, Some(rooms.clone()))),
             blacklisted: vec![blacklisted.clone(), BlacklistEntry { cell: Cell::new(9, 9), ..blacklisted.clone() }],
             unblacklisted: vec![],
             forbidden: vec![region.clone(), Region { id: 4, ..region.clone() }],
@@ -227,6 +229,10 @@ async fn a_changeset_round_trips_through_a_real_file() {
     assert_eq!(events.len(), 1);
     assert_eq!((events[0].kind.as_str(), events[0].actor.as_str()), ("policy_changed", "ops"));
     assert_eq!(store.segmentation(mission.id).await.unwrap(), Some(segmentation));
+    assert_eq!(store.given_segmentation(mission.id).await.unwrap(), Some(rooms));
+    let cleared = Changeset { given_segmentation: Some((mission.id, None)), ..Changeset::default() };
+    store.commit(cleared).await.unwrap();
+    assert_eq!(store.given_segmentation(mission.id).await.unwrap(), None);
     assert_eq!(store.max_task_id().await.unwrap(), 7);
 }
 

@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 
 use sqlx::SqliteConnection;
 
-use super::rows::{critical_points_json, encode_cells, encode_labels, leftovers_json, segments_json};
+use super::rows::{critical_points_json, encode_cells, leftovers_json, segments_json};
 use crate::domain::{MissionId, RobotId, RobotRecord, TaskId, TaskState, Timestamp, Transition};
 use crate::store::{Changeset, LoggedPatch, MissionCounters, StoreError};
 
@@ -173,11 +173,32 @@ async fn body(tx: &mut SqliteConnection, changes: &Changeset, now: Timestamp) ->
         )
         .bind(*mission_id as i64)
         .bind(stored.computed_at.millis())
-        .bind(encode_labels(&stored.segmentation.labels))
+        .bind(exploration_proto::label_runs::encode(&stored.segmentation.labels))
         .bind(segments_json(&stored.segmentation))
         .bind(critical_points_json(&stored.segmentation))
         .execute(&mut *tx)
         .await?;
+    }
+    if let Some((mission_id, rooms)) = &changes.given_segmentation {
+        match rooms {
+            Some(rooms) => {
+                sqlx::query(
+                    "INSERT INTO given_segmentations (mission_id, label_runs, set_at) VALUES (?1, ?2, ?3)
+                     ON CONFLICT (mission_id) DO UPDATE SET label_runs = excluded.label_runs, set_at = excluded.set_at",
+                )
+                .bind(*mission_id as i64)
+                .bind(exploration_proto::label_runs::encode(rooms))
+                .bind(changes.at.unwrap_or_else(Timestamp::now).millis())
+                .execute(&mut *tx)
+                .await?;
+            }
+            None => {
+                sqlx::query("DELETE FROM given_segmentations WHERE mission_id = ?1")
+                    .bind(*mission_id as i64)
+                    .execute(&mut *tx)
+                    .await?;
+            }
+        }
     }
     for entry in &changes.blacklisted {
         sqlx::query(
