@@ -166,11 +166,23 @@ pub struct LoadReport {
     pub offered_per_s: f64,
     /// Per call: throughput, latency, statuses.
     pub calls: BTreeMap<String, CallReport>,
-    /// From a robot reporting its target reached to its next assignment
-    /// arriving on its stream, milliseconds.
+    /// From a robot reporting an exploration target reached to its next
+    /// assignment arriving on its stream (a new task, or none),
+    /// milliseconds.
     pub trigger_to_assignment_ms: Latency,
-    /// Triggers whose next assignment never came within the phase.
+    /// Triggers answered with no task: nothing left for that robot.
+    pub triggers_answered_with_nothing: u64,
+    /// Triggers reported in the last [`TRIGGER_GRACE`] of the phase and not
+    /// answered by its end: too late to tell.
+    pub triggers_pending_at_end: u64,
+    /// Triggers reported earlier and never answered: the executive missed
+    /// them.
     pub triggers_unanswered: u64,
+    /// Per mission that completed (its frontier explored) during the phase:
+    /// when, seconds from the start. Once a mission completes its robots
+    /// get no more exploration targets, so later figures measure a fleet
+    /// that reports but does not replan.
+    pub missions_completed_s: BTreeMap<u64, f64>,
     /// Map updates acknowledged to the robots.
     pub map_updates_acknowledged: u64,
     /// Whether every acknowledged update is in the store (each mission's
@@ -211,9 +223,27 @@ impl LoadReport {
         }
         let t = &self.trigger_to_assignment_ms;
         out += &format!(
-            "trigger → assignment: {} triggers, p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms; {} unanswered\n",
-            t.count, t.p50, t.p99, t.max, self.triggers_unanswered
+            "trigger → assignment: {} answered ({} with no task), p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms; \
+             {} unanswered, {} pending at the end\n",
+            t.count,
+            self.triggers_answered_with_nothing,
+            t.p50,
+            t.p99,
+            t.max,
+            self.triggers_unanswered,
+            self.triggers_pending_at_end
         );
+        if !self.missions_completed_s.is_empty() {
+            let mut at: Vec<f64> = self.missions_completed_s.values().copied().collect();
+            at.sort_by(f64::total_cmp);
+            out += &format!(
+                "missions explored completely: {} of {}, from {:.0} s to {:.0} s\n",
+                at.len(),
+                self.missions,
+                at[0],
+                at[at.len() - 1]
+            );
+        }
         out += &format!(
             "map updates acknowledged: {}; all in the store: {}\n",
             self.map_updates_acknowledged, self.acknowledged_in_store
@@ -239,6 +269,28 @@ impl LoadReport {
             );
         }
         out
+    }
+}
+
+/// How long before the end of the phase an unanswered trigger counts as
+/// pending rather than missed: a few replanning intervals.
+pub const TRIGGER_GRACE: Duration = Duration::from_secs(5);
+
+/// Arrivals at exploration targets and what the executive answered, shared
+/// by the robots.
+#[derive(Debug)]
+struct Triggers {
+    answered: Histogram<u64>,
+    with_nothing: u64,
+    pending: u64,
+    unanswered: u64,
+    /// Mission → when it was first seen completed.
+    completed: BTreeMap<u64, Instant>,
+}
+
+impl Triggers {
+    fn new() -> Self {
+        Self { answered: new_histogram(), with_nothing: 0, pending: 0, unanswered: 0, completed: BTreeMap::new() }
     }
 }
 
@@ -428,7 +480,7 @@ async fn run_against(
         }
     }
     let recorder = Arc::new(Recorder::new());
-    let triggers = Arc::new(Mutex::new((new_histogram(), 0u64)));
+    let triggers = Arc::new(Mutex::new(Triggers::new()));
     let before = config.executive_pid.map(process_cpu);
     let started = Instant::now();
     let until = started + config.duration;
@@ -511,15 +563,22 @@ async fn run_against(
             }
         }
     }
-    let (trigger_histogram, unanswered) = &*triggers.lock().unwrap_or_else(|e| e.into_inner());
+    let triggers = &*triggers.lock().unwrap_or_else(|e| e.into_inner());
     Ok(LoadReport {
         missions: config.missions,
         robots: total_robots,
         duration_s: elapsed,
         offered_per_s: per_robot * total_robots as f64,
         calls,
-        trigger_to_assignment_ms: Latency::of(trigger_histogram),
-        triggers_unanswered: *unanswered,
+        trigger_to_assignment_ms: Latency::of(&triggers.answered),
+        triggers_answered_with_nothing: triggers.with_nothing,
+        triggers_pending_at_end: triggers.pending,
+        triggers_unanswered: triggers.unanswered,
+        missions_completed_s: triggers
+            .completed
+            .iter()
+            .map(|(&mission, &at)| (mission, at.saturating_duration_since(started).as_secs_f64()))
+            .collect(),
         map_updates_acknowledged: acknowledged,
         acknowledged_in_store: in_store,
         executive,
@@ -572,7 +631,7 @@ async fn drive(
     world: Arc<World>,
     config: LoadConfig,
     recorder: Arc<Recorder>,
-    triggers: Arc<Mutex<(Histogram<u64>, u64)>>,
+    triggers: Arc<Mutex<Triggers>>,
     until: Instant,
 ) {
     let frame = world.frame;
@@ -588,6 +647,7 @@ async fn drive(
     // The task reached and when, until the next one arrives.
     let mut waiting: Option<(u64, Instant)> = None;
     let mut reported = None;
+    let mut seen_completed = false;
     let mut requests = JoinSet::new();
     let mut assignment = robot.assignment.clone();
     loop {
@@ -599,14 +659,25 @@ async fn drive(
         let now = Instant::now();
         let current = assignment.borrow_and_update().clone();
         let target = current.as_ref().filter(|(a, _)| a.task_id != 0).and_then(|(a, _)| Some((a.task_id, a.target?)));
-        if let Some((task, reported)) = waiting
-            && let Some((_, arrived)) = current.as_ref().filter(|(a, _)| a.task_id != 0 && a.task_id != task)
-        {
-            // From the report of the arrival to the stream delivering the next task.
-            let delay = arrived.saturating_duration_since(reported).max(Duration::from_micros(1));
-            let mut triggers = triggers.lock().unwrap_or_else(|e| e.into_inner());
-            triggers.0.saturating_record(delay.as_micros() as u64);
-            waiting = None;
+        let explores = current.as_ref().is_some_and(|(a, _)| {
+            matches!(pb::TaskKind::try_from(a.kind), Ok(pb::TaskKind::Explore | pb::TaskKind::Pin | pb::TaskKind::Goto))
+        });
+        if let Some((a, arrived)) = &current {
+            if !seen_completed && a.mission_state == pb::MissionState::Completed as i32 {
+                seen_completed = true;
+                let mut triggers = triggers.lock().unwrap_or_else(|e| e.into_inner());
+                triggers.completed.entry(robot.mission).or_insert(*arrived);
+            }
+            // The answer to an arrival: the next assignment, with a task or without.
+            if let Some((task, reported)) = waiting
+                && a.task_id != task
+            {
+                let delay = arrived.saturating_duration_since(reported).max(Duration::from_micros(1));
+                let mut triggers = triggers.lock().unwrap_or_else(|e| e.into_inner());
+                triggers.answered.saturating_record(delay.as_micros() as u64);
+                triggers.with_nothing += u64::from(a.task_id == 0);
+                waiting = None;
+            }
         }
         // Move towards the target at the robot's speed.
         let dt = now.duration_since(last_move).as_secs_f64();
@@ -635,7 +706,10 @@ async fn drive(
             };
             if let Some(task) = arrived {
                 reported = Some(task);
-                waiting = Some((task, due));
+                // Arriving home or at a hold ends nothing the executive must answer.
+                if explores {
+                    waiting = Some((task, due));
+                }
             }
             let request = pb::HeartbeatRequest {
                 robot_id: robot.id,
@@ -676,8 +750,13 @@ async fn drive(
         while requests.try_join_next().is_some() {}
     }
     while requests.join_next().await.is_some() {}
-    if waiting.is_some() {
-        triggers.lock().unwrap_or_else(|e| e.into_inner()).1 += 1;
+    if let Some((_, reported)) = waiting {
+        let mut triggers = triggers.lock().unwrap_or_else(|e| e.into_inner());
+        if reported + TRIGGER_GRACE >= until {
+            triggers.pending += 1;
+        } else {
+            triggers.unanswered += 1;
+        }
     }
 }
 

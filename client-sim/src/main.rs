@@ -36,7 +36,7 @@ enum Command {
     /// Loads an executive with many missions × many robots at real robots'
     /// rates, open-loop, and reports throughput, latency, triggers, the
     /// executive's CPU and memory, and its capacity against an empty call.
-    Load(LoadArgs),
+    Load(Box<LoadArgs>),
     /// Plots latency against offered load from `load --json` reports.
     LoadPlot(LoadPlotArgs),
 }
@@ -77,9 +77,11 @@ struct LoadArgs {
     /// Sensor range, metres (the patches are its footprint).
     #[arg(long, default_value_t = 3.0)]
     sensor_range: f64,
-    /// The map every mission explores (default: the bundled Nav2 warehouse).
-    #[arg(long)]
-    map: Option<PathBuf>,
+    /// The world every mission explores (default: the bundled Nav2
+    /// warehouse, which 50 robots explore in under half a minute; after
+    /// that a mission only reports: give a larger world for a longer run).
+    #[command(flatten)]
+    world: WorldArgs,
     /// Cell size, metres.
     #[arg(long, default_value_t = 0.15)]
     cell_size: f64,
@@ -177,8 +179,9 @@ impl TlsArgs {
     }
 }
 
+/// A map or a generated world.
 #[derive(Debug, Args)]
-struct RunArgs {
+struct WorldArgs {
     /// ROS map_server YAML of the world to explore.
     #[arg(long, conflicts_with = "world")]
     map: Option<PathBuf>,
@@ -189,6 +192,30 @@ struct RunArgs {
     /// Size of a generated world, WIDTHxHEIGHT in metres.
     #[arg(long, default_value = "20x20")]
     size: String,
+}
+
+impl WorldArgs {
+    /// The world asked for, or `default` when neither a map nor a generator was given.
+    fn spec(&self, default: Option<PathBuf>) -> anyhow::Result<WorldSpec> {
+        match (&self.map, &self.world, default) {
+            (Some(map), None, _) => Ok(WorldSpec::Map(map.clone())),
+            (None, Some(generator), _) => {
+                let generator = Generator::parse(generator).with_context(|| {
+                    format!("--world {generator:?}: expected unstructured, office, corridor, maze or empty")
+                })?;
+                let (w, h) = parse_size(&self.size)?;
+                Ok(WorldSpec::Generated { generator, width_m: w, height_m: h })
+            }
+            (None, None, Some(map)) => Ok(WorldSpec::Map(map)),
+            _ => bail!("give --map PATH.yaml or --world KIND"),
+        }
+    }
+}
+
+#[derive(Debug, Args)]
+struct RunArgs {
+    #[command(flatten)]
+    world: WorldArgs,
     /// Number of robots.
     #[arg(long, default_value_t = 3)]
     robots: usize,
@@ -350,7 +377,7 @@ async fn main() -> anyhow::Result<()> {
         Command::Run(args) => run(*args).await,
         Command::Experiment(args) => experiment(args).await,
         Command::Report(args) => report(args),
-        Command::Load(args) => load(args).await,
+        Command::Load(args) => load(*args).await,
         Command::LoadPlot(args) => load_plot(args),
     }
 }
@@ -361,7 +388,8 @@ async fn load(args: LoadArgs) -> anyhow::Result<()> {
         Ok(Duration::from_secs_f64(v))
     };
     anyhow::ensure!(args.rate_scale > 0.0 && args.rate_scale.is_finite(), "--rate-scale must be positive");
-    let map = args.map.unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../maps/nav2_warehouse.yaml"));
+    let warehouse = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../maps/nav2_warehouse.yaml");
+    let world = args.world.spec(Some(warehouse))?;
     let config = client_sim::load::LoadConfig {
         missions: args.missions,
         robots: args.robots,
@@ -370,7 +398,7 @@ async fn load(args: LoadArgs) -> anyhow::Result<()> {
         map_hz: args.map_hz * args.rate_scale,
         speed_mps: args.speed,
         sensor_range_m: args.sensor_range,
-        world: WorldSpec::Map(map),
+        world,
         cell_size: args.cell_size,
         policy: args.policy,
         seed: args.seed,
@@ -410,17 +438,7 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
     if args.robots == 0 {
         bail!("--robots must be at least 1");
     }
-    let world = match (&args.map, &args.world) {
-        (Some(map), None) => WorldSpec::Map(map.clone()),
-        (None, Some(generator)) => {
-            let generator = Generator::parse(generator).with_context(|| {
-                format!("--world {generator:?}: expected unstructured, office, corridor, maze or empty")
-            })?;
-            let (w, h) = parse_size(&args.size)?;
-            WorldSpec::Generated { generator, width_m: w, height_m: h }
-        }
-        _ => bail!("give --map PATH.yaml or --world KIND"),
-    };
+    let world = args.world.spec(None)?;
     let mut config = RunConfig::on(world, args.robots, &args.policy);
     config.params = args.params.into_iter().collect::<BTreeMap<_, _>>();
     config.seed = args.seed;

@@ -33,4 +33,10 @@ fn a_small_load_run_reports_every_figure_and_loses_nothing() {
     assert!(report["capacity"]["empty_calls_per_s"].as_f64().unwrap() > 0.0);
     assert!(report["capacity"]["map_updates_per_s"].as_f64().unwrap() > 0.0);
     assert!(report["executive"]["shared_with_load_generator"].as_bool().unwrap());
+    // A trigger is missed only when older than the grace at the end: none in 3 s.
+    assert_eq!(report["triggers_unanswered"], 0, "{report}");
+    for key in ["triggers_answered_with_nothing", "triggers_pending_at_end"] {
+        assert!(report[key].is_u64(), "{key}: {report}");
+    }
+    assert!(report["missions_completed_s"].is_object(), "{report}");
 }
