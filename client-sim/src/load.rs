@@ -167,11 +167,13 @@ pub struct LoadReport {
     /// Per call: throughput, latency, statuses.
     pub calls: BTreeMap<String, CallReport>,
     /// From a robot reporting an exploration target reached to its next
-    /// assignment arriving on its stream (a new task, or none),
-    /// milliseconds.
+    /// task arriving on its stream, milliseconds. (The executive first ends
+    /// the task, and the robot's assignment is empty until the plan that
+    /// gives it the next one.)
     pub trigger_to_assignment_ms: Latency,
-    /// Triggers answered with no task: nothing left for that robot.
-    pub triggers_answered_with_nothing: u64,
+    /// Triggers whose mission completed before a next task came: nothing
+    /// was left to give.
+    pub triggers_ended_by_completion: u64,
     /// Triggers reported in the last [`TRIGGER_GRACE`] of the phase and not
     /// answered by its end: too late to tell.
     pub triggers_pending_at_end: u64,
@@ -223,13 +225,13 @@ impl LoadReport {
         }
         let t = &self.trigger_to_assignment_ms;
         out += &format!(
-            "trigger → assignment: {} answered ({} with no task), p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms; \
-             {} unanswered, {} pending at the end\n",
+            "trigger → next task: {} answered, p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms; \
+             {} ended by the mission's completion, {} unanswered, {} pending at the end\n",
             t.count,
-            self.triggers_answered_with_nothing,
             t.p50,
             t.p99,
             t.max,
+            self.triggers_ended_by_completion,
             self.triggers_unanswered,
             self.triggers_pending_at_end
         );
@@ -281,7 +283,7 @@ pub const TRIGGER_GRACE: Duration = Duration::from_secs(5);
 #[derive(Debug)]
 struct Triggers {
     answered: Histogram<u64>,
-    with_nothing: u64,
+    ended_by_completion: u64,
     pending: u64,
     unanswered: u64,
     /// Mission → when it was first seen completed.
@@ -290,7 +292,13 @@ struct Triggers {
 
 impl Triggers {
     fn new() -> Self {
-        Self { answered: new_histogram(), with_nothing: 0, pending: 0, unanswered: 0, completed: BTreeMap::new() }
+        Self {
+            answered: new_histogram(),
+            ended_by_completion: 0,
+            pending: 0,
+            unanswered: 0,
+            completed: BTreeMap::new(),
+        }
     }
 }
 
@@ -571,7 +579,7 @@ async fn run_against(
         offered_per_s: per_robot * total_robots as f64,
         calls,
         trigger_to_assignment_ms: Latency::of(&triggers.answered),
-        triggers_answered_with_nothing: triggers.with_nothing,
+        triggers_ended_by_completion: triggers.ended_by_completion,
         triggers_pending_at_end: triggers.pending,
         triggers_unanswered: triggers.unanswered,
         missions_completed_s: triggers
@@ -668,15 +676,17 @@ async fn drive(
                 let mut triggers = triggers.lock().unwrap_or_else(|e| e.into_inner());
                 triggers.completed.entry(robot.mission).or_insert(*arrived);
             }
-            // The answer to an arrival: the next assignment, with a task or without.
-            if let Some((task, reported)) = waiting
-                && a.task_id != task
-            {
-                let delay = arrived.saturating_duration_since(reported).max(Duration::from_micros(1));
-                let mut triggers = triggers.lock().unwrap_or_else(|e| e.into_inner());
-                triggers.answered.saturating_record(delay.as_micros() as u64);
-                triggers.with_nothing += u64::from(a.task_id == 0);
-                waiting = None;
+            // The answer to an arrival: the next task, or the mission's end.
+            if let Some((task, reported)) = waiting {
+                if explores && a.task_id != task {
+                    let delay = arrived.saturating_duration_since(reported).max(Duration::from_micros(1));
+                    let mut triggers = triggers.lock().unwrap_or_else(|e| e.into_inner());
+                    triggers.answered.saturating_record(delay.as_micros() as u64);
+                    waiting = None;
+                } else if a.mission_state == pb::MissionState::Completed as i32 {
+                    triggers.lock().unwrap_or_else(|e| e.into_inner()).ended_by_completion += 1;
+                    waiting = None;
+                }
             }
         }
         // Move towards the target at the robot's speed.

@@ -17,6 +17,46 @@ async fn snapshot(exec: &TestExecutive, mission_id: u64) -> (u64, u64, Vec<u64>,
     (mission.map_updates, mission.known_cells, robots.iter().map(|r| r.last_map_seq).collect(), map.cells)
 }
 
+/// A mission whose robots have sent no map yet knows nothing: it cannot be
+/// complete. (A load run saw fresh missions reported COMPLETED to their
+/// robots: the plan made when the first robot joined found no frontier and
+/// no robot that could explore anything, and took that for the end.)
+#[tokio::test]
+async fn a_mission_that_knows_nothing_yet_is_not_complete() {
+    let dir = tempfile::tempdir().unwrap();
+    let exec = TestExecutive::start(&dir.path().join("x.db")).await;
+    let mut missions = exec.missions();
+    let mission = missions
+        .create_mission(pb::CreateMissionRequest {
+            name: "planned off the request path".into(),
+            frame: Some(common::frame(40, 30)),
+            policy: Some(pb::PolicySpec { name: "minpos".into(), params: Default::default() }),
+            lockstep: false,
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let mut fleet = exec.fleet();
+    let robot = register(&mut fleet, mission.id, "r", 0.55, 0.55).await;
+    // The robot joining asks for a plan; wait until it was made.
+    let planned = async {
+        loop {
+            let got =
+                missions.get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
+            if got.replans > 0 {
+                return got;
+            }
+            tokio::task::yield_now().await;
+        }
+    };
+    let got = tokio::time::timeout(std::time::Duration::from_secs(30), planned).await.expect("a plan within 30 s");
+    assert_eq!(got.state, pb::MissionState::Active as i32, "{got:?}");
+    let assignment = fleet.get_assignment(pb::GetAssignmentRequest { robot_id: robot.id }).await.unwrap().into_inner();
+    assert_eq!(assignment.mission_state, pb::MissionState::Active as i32, "{assignment:?}");
+    exec.stop().await;
+}
+
 #[tokio::test]
 async fn bad_map_updates_get_precise_statuses_and_change_nothing() {
     let dir = tempfile::tempdir().unwrap();

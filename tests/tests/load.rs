@@ -18,7 +18,7 @@ fn a_small_load_run_reports_every_figure_and_loses_nothing() {
         .unwrap();
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     let summary = String::from_utf8_lossy(&output.stderr);
-    assert!(summary.contains("trigger → assignment") && summary.contains("capacity"), "{summary}");
+    assert!(summary.contains("trigger → next task") && summary.contains("capacity"), "{summary}");
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     assert_eq!(report["robots"], 10);
     assert_eq!(report["acknowledged_in_store"], true);
@@ -35,7 +35,7 @@ fn a_small_load_run_reports_every_figure_and_loses_nothing() {
     assert!(report["executive"]["shared_with_load_generator"].as_bool().unwrap());
     // A trigger is missed only when older than the grace at the end: none in 3 s.
     assert_eq!(report["triggers_unanswered"], 0, "{report}");
-    for key in ["triggers_answered_with_nothing", "triggers_pending_at_end"] {
+    for key in ["triggers_ended_by_completion", "triggers_pending_at_end"] {
         assert!(report[key].is_u64(), "{key}: {report}");
     }
     assert!(report["missions_completed_s"].is_object(), "{report}");

@@ -38,6 +38,8 @@ pub(crate) struct PlanningJob {
     policy: Arc<dyn Policy>,
     /// The rooms given with the mission, if any.
     rooms: Option<Rooms>,
+    /// No robot has sent a map yet: finding no frontier means nothing.
+    nothing_known: bool,
     threads: usize,
     seed: u64,
 }
@@ -155,7 +157,12 @@ impl PlanningJob {
                 leftovers.clear();
             }
         }
-        let undecided = self.order.is_empty() && !explored;
+        // A mission that knows nothing has no frontier yet, not none left.
+        if self.nothing_known {
+            complete = false;
+            leftovers.clear();
+        }
+        let undecided = (self.order.is_empty() || self.nothing_known) && !explored;
         let frontier_targets = self
             .parts
             .iter()
@@ -366,6 +373,7 @@ impl Mission {
             min_frontier_size: min_size,
             policy: self.policy.clone(),
             rooms: self.rooms.clone(),
+            nothing_known: self.known_cells == 0,
             threads,
             // Randomized policies draw from the mission and its replanning count: reproducible.
             seed: self.record.id.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.record.replans,
