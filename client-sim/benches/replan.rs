@@ -1,5 +1,6 @@
 //! One replanning per policy, for 10 and 50 robots, on the largest shared map
-//! (`stage_hospital`, 1 400 × 534 cells at 0.1 m) half explored.
+//! (`stage_hospital`, 1 400 × 534 cells at 0.1 m) half explored; and for
+//! 200 robots on a generated office four times its area, half explored.
 //!
 //! The shared maps are read from `EXPLORATION_SHARED_MAPS` (or
 //! `../shared/maps` beside the workspace); without them the bench says so and
@@ -14,6 +15,7 @@ use std::path::PathBuf;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 
+use client_sim::generate::{Generator, generate};
 use client_sim::world::{StartChoice, World};
 use exploration::cost::CostCache;
 use exploration::frontier::{FrontierMap, clusters};
@@ -71,8 +73,19 @@ fn half_explored(world: &World) -> OccupancyGrid {
 
 fn replan(c: &mut Criterion) {
     let path = map();
-    let world = World::load(&path, Some(0.1), StartChoice::Auto, 0).expect("the map loads");
-    let grid = half_explored(&world);
+    let hospital = World::load(&path, Some(0.1), StartChoice::Auto, 0).expect("the map loads");
+    plan_every_policy(c, &hospital, &[10, 50]);
+    // Issue 11's second size: 200 robots on a generated office four times
+    // the hospital's area (280 × 107 m at 0.1 m), half explored.
+    let (w, h) = (hospital.frame.width as f64 * 0.2, hospital.frame.height as f64 * 0.2);
+    let office = generate(Generator::Office, w, h, 0.1, 1, StartChoice::Auto).expect("the office generates");
+    plan_every_policy(c, &office, &[200]);
+}
+
+/// One replanning of every policy, for each team size in `teams`, on
+/// `world` half explored.
+fn plan_every_policy(c: &mut Criterion, world: &World, teams: &[usize]) {
+    let grid = half_explored(world);
     let frame = *grid.frame();
     let frontier = FrontierMap::detect(&grid);
     let free: Vec<Cell> = (0..frame.len()).filter(|&i| grid.value_at(i) == 12).map(|i| frame.cell(i)).collect();
@@ -86,7 +99,8 @@ fn replan(c: &mut Criterion) {
         grid.cells().iter().filter(|&&v| v == UNKNOWN).count()
     );
     let mut rng = SplitMix64::new(42);
-    let all_robots: Vec<RobotView> = (0..50)
+    let largest = teams.iter().copied().max().unwrap_or(0);
+    let all_robots: Vec<RobotView> = (0..largest as u64)
         .map(|i| RobotView {
             id: i,
             cell: free[rng.below(free.len() as u64) as usize],
@@ -106,7 +120,7 @@ fn replan(c: &mut Criterion) {
         let config = PolicyConfig::default_for(descriptor.name).unwrap();
         let policy = config.build();
         let clusters = clusters(&frontier, config.min_frontier_size());
-        for n in [10usize, 50] {
+        for &n in teams {
             let robots = &all_robots[..n];
             let bids = vec![Vec::new(); n];
             let input = PlanningInput {

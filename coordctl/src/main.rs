@@ -131,6 +131,20 @@ enum Command {
         #[arg(long)]
         count: Option<usize>,
     },
+    /// Give a mission its rooms and corridors (Wurm et al. 2008, §VI): the
+    /// segmentation of the finished building's map at MAP (map_server YAML
+    /// of the same area as the mission's map), which the `segmentation`
+    /// policy then plans on; or `--online` to go back to segmenting the
+    /// explored map as it grows.
+    Rooms {
+        mission: u64,
+        #[arg(required_unless_present = "online", conflicts_with = "online")]
+        map: Option<PathBuf>,
+        #[arg(long)]
+        online: bool,
+        #[arg(long, default_value = "")]
+        reason: String,
+    },
     /// The fused map.
     #[command(subcommand)]
     Map(MapCommand),
@@ -415,6 +429,22 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             let region = api.forbid_region(request).await?.into_inner();
             out.regions(std::slice::from_ref(&region));
         }
+        Command::Rooms { mission, map, online: _, reason } => {
+            let label_runs = match map {
+                Some(map) => {
+                    let frame = api
+                        .get_mission(pb::GetMissionRequest { mission_id: mission })
+                        .await?
+                        .into_inner()
+                        .frame
+                        .context("the executive sent a mission without a frame")?;
+                    exploration_proto::label_runs::encode(&rooms_of(&map, &frame)?)
+                }
+                None => Vec::new(),
+            };
+            let request = pb::SetGivenSegmentationRequest { mission_id: mission, label_runs, actor, reason };
+            out.mission(&api.set_given_segmentation(request).await?.into_inner());
+        }
         Command::Allow { mission, region, reason } => {
             let request = pb::AllowRegionRequest { mission_id: mission, region_id: region, actor, reason };
             let mission = api.allow_region(request).await?.into_inner();
@@ -610,6 +640,34 @@ fn numbers<const N: usize>(text: &str, what: &str) -> Result<[f64; N], String> {
 fn parse_point(text: &str) -> Result<pb::Point, String> {
     let [x, y] = numbers::<2>(text, "x,y in metres")?;
     Ok(pb::Point { x, y })
+}
+
+/// The rooms of the finished map at `yaml`, cell by cell over the mission's
+/// frame; refused unless the map covers the same cells.
+fn rooms_of(yaml: &std::path::Path, frame: &pb::MapFrame) -> anyhow::Result<Vec<u32>> {
+    use client_sim::world::{StartChoice, World};
+    let world = World::load(yaml, Some(frame.resolution), StartChoice::Auto, 0)
+        .with_context(|| format!("loading {}", yaml.display()))?;
+    let origin = frame.origin.unwrap_or_default();
+    let (w, o) = (world.frame, world.frame.origin);
+    let same_origin =
+        (o.x - origin.x).abs() < frame.resolution / 2.0 && (o.y - origin.y).abs() < frame.resolution / 2.0;
+    if w.width != frame.width || w.height != frame.height || !same_origin {
+        bail!(
+            "{} at {} m is {}×{} cells from ({:.2}, {:.2}); the mission's map is {}×{} from ({:.2}, {:.2})",
+            yaml.display(),
+            frame.resolution,
+            w.width,
+            w.height,
+            o.x,
+            o.y,
+            frame.width,
+            frame.height,
+            origin.x,
+            origin.y
+        );
+    }
+    Ok(world.given_rooms())
 }
 
 fn parse_rect(text: &str) -> Result<pb::Rect, String> {

@@ -48,6 +48,9 @@ impl Output {
         );
         println!("  robots      {}", m.robots);
         println!("  map         {} known cells, {} frontier cells", m.known_cells, m.frontier_cells);
+        if m.given_segmentation {
+            println!("  rooms       given (the segmentation policy plans on them; `rooms {} --online` undoes)", m.id);
+        }
         println!("  activity    {} map updates, {} replannings", m.map_updates, m.replans);
         println!(
             "  lifecycle   lease {} s, stall {} s, rendezvous {}",
@@ -308,6 +311,7 @@ fn mission_json(m: &pb::Mission) -> Value {
         "map_updates": m.map_updates,
         "scoped_by_communication": m.scoped_by_communication,
         "lifecycle": { "lease_s": lifecycle.lease_s, "stall_s": lifecycle.stall_s, "rendezvous": point_json(lifecycle.rendezvous) },
+        "given_segmentation": m.given_segmentation,
         "forbidden_regions": m.forbidden_regions.iter().map(region_json).collect::<Vec<_>>(),
         "leftovers": leftovers,
     })

@@ -230,6 +230,60 @@ async fn a_given_segmentation_is_planned_on_kept_and_taken_back() {
     exec.stop().await;
 }
 
+/// An operator gives a mission the rooms of its finished map with
+/// `coordctl rooms`, as the README shows; a map of another area is refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn coordctl_gives_a_mission_the_rooms_of_its_finished_map() {
+    let dir = tempfile::tempdir().unwrap();
+    let exec = TestExecutive::start(&dir.path().join("rooms.db")).await;
+    let url = exec.url.clone();
+    let coordctl = move |args: &[&str]| {
+        let output = std::process::Command::new(common::binary("coordctl"))
+            .args(["--server", &url, "--json", "--as", "alice"])
+            .args(args)
+            .env("RUST_LOG", "warn")
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+        (output.status.success(), stdout, String::from_utf8_lossy(&output.stderr).into_owned())
+    };
+    let depot = bundled_map("nav2_depot").display().to_string();
+    let warehouse = bundled_map("nav2_warehouse").display().to_string();
+    let run = |args: Vec<String>| {
+        let coordctl = coordctl.clone();
+        tokio::task::spawn_blocking(move || coordctl(&args.iter().map(String::as_str).collect::<Vec<_>>()))
+    };
+    let (ok, created, err) = run(vec![
+        "missions".into(),
+        "create".into(),
+        "--map".into(),
+        depot.clone(),
+        "--policy".into(),
+        "segmentation".into(),
+    ])
+    .await
+    .unwrap();
+    assert!(ok, "{err}");
+    let id = serde_json::from_str::<serde_json::Value>(&created).unwrap()["id"].as_u64().unwrap().to_string();
+    let (ok, given, err) = run(vec!["rooms".into(), id.clone(), depot]).await.unwrap();
+    assert!(ok, "{err}");
+    assert_eq!(serde_json::from_str::<serde_json::Value>(&given).unwrap()["given_segmentation"], true, "{given}");
+    let (ok, _, err) = run(vec!["rooms".into(), id.clone(), warehouse]).await.unwrap();
+    assert!(!ok && err.contains("the mission's map is"), "{err}");
+    let events = exec
+        .missions()
+        .list_events(pb::ListEventsRequest { mission_id: id.parse().unwrap() })
+        .await
+        .unwrap()
+        .into_inner()
+        .events;
+    assert_eq!(events.iter().filter(|e| e.kind == "segmentation_given" && e.actor == "alice").count(), 1, "{events:?}");
+    let (ok, online, err) = run(vec!["rooms".into(), id, "--online".into()]).await.unwrap();
+    assert!(ok, "{err}");
+    assert_eq!(serde_json::from_str::<serde_json::Value>(&online).unwrap()["given_segmentation"], false, "{online}");
+    exec.stop().await;
+}
+
 /// Every policy completes missions on the bundled maps with 1, 3 and 8
 /// robots (coarse cells keep the debug build quick; the full matrix at
 /// 0.1 m is `experiments/policy-matrix.toml`).
