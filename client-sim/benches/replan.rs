@@ -15,6 +15,10 @@ use std::path::PathBuf;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 
+/// The allocator the coordinator and fleet-sim run with.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use client_sim::generate::{Generator, generate};
 use client_sim::world::{StartChoice, World};
 use exploration::cost::CostCache;
