@@ -295,10 +295,23 @@ enum Call {
     Pause(usize, bool),
     Policy(usize, u8),
     Override(usize, u8, Option<pb::Point>),
+    /// Rooms for a mission: 0 raw label runs from the numbers, 1 runs that
+    /// cover its map (one per number), 2 none (back to online).
+    Rooms(usize, u8, Vec<u32>),
 }
 
-const POLICIES: [&str; 9] =
-    ["nearest", "greedy", "burgard", "burgard-joint", "simmons", "minpos", "segmentation", "hungarian", "colares"];
+const POLICIES: [&str; 10] = [
+    "nearest",
+    "greedy",
+    "burgard",
+    "burgard-joint",
+    "simmons",
+    "minpos",
+    "segmentation",
+    "hungarian",
+    "colares",
+    "unassigned",
+];
 
 fn call() -> impl Strategy<Value = Call> {
     let small_frame = (0.05..0.5f64, 1..60u32, 1..60u32).prop_map(|(resolution, width, height)| {
@@ -317,6 +330,7 @@ fn call() -> impl Strategy<Value = Call> {
         1 => (0..4usize, any::<bool>()).prop_map(|(m, p)| Call::Pause(m, p)),
         1 => (0..4usize, any::<u8>()).prop_map(|(m, p)| Call::Policy(m, p)),
         1 => (0..8usize, 0..7u8, point()).prop_map(|(r, a, p)| Call::Override(r, a, p)),
+        1 => (0..4usize, 0..3u8, proptest::collection::vec(wild_u32(), 0..6)).prop_map(|(m, k, l)| Call::Rooms(m, k, l)),
     ]
 }
 
@@ -328,6 +342,8 @@ struct Acknowledged {
     robots: BTreeMap<u64, (u64, u64)>,
     /// Mission id → acknowledged map updates.
     map_updates: BTreeMap<u64, u64>,
+    /// Mission id → whether its rooms were last given (acknowledged).
+    rooms: BTreeMap<u64, bool>,
 }
 
 /// A status the executive may answer: anything but a failure of its own.
@@ -433,11 +449,46 @@ async fn play(calls: Vec<Call>) -> Result<(), TestCaseError> {
             Call::Policy(m, p) => {
                 let request = pb::SetPolicyRequest {
                     mission_id: mission_of(&seen, m),
-                    policy: Some(pb::PolicySpec { name: POLICIES[p as usize % 9].into(), params: Default::default() }),
+                    policy: Some(pb::PolicySpec {
+                        name: POLICIES[p as usize % POLICIES.len()].into(),
+                        params: Default::default(),
+                    }),
                     ..Default::default()
                 };
                 if let Err(s) = missions.set_policy(request).await {
                     expected(&s)?;
+                }
+            }
+            Call::Rooms(m, kind, numbers) => {
+                let mission_id = mission_of(&seen, m);
+                let pair = |label: u32, run: u32| [label.to_le_bytes(), run.to_le_bytes()].concat();
+                let label_runs: Vec<u8> = match kind {
+                    0 => numbers.iter().flat_map(|n| n.to_le_bytes()).collect(),
+                    1 => match missions.get_mission(pb::GetMissionRequest { mission_id }).await {
+                        Ok(mission) => {
+                            let frame = mission.into_inner().frame.unwrap_or_default();
+                            let cells = u64::from(frame.width) * u64::from(frame.height);
+                            let parts = numbers.len().max(1) as u64;
+                            (0..parts)
+                                .map(|k| {
+                                    let run = cells * (k + 1) / parts - cells * k / parts;
+                                    pair(numbers.get(k as usize).copied().unwrap_or(1), run as u32)
+                                })
+                                .collect::<Vec<_>>()
+                                .concat()
+                        }
+                        Err(_) => Vec::new(),
+                    },
+                    _ => Vec::new(),
+                };
+                let given = !label_runs.is_empty();
+                let request = pb::SetGivenSegmentationRequest { mission_id, label_runs, ..Default::default() };
+                match missions.set_given_segmentation(request).await {
+                    Ok(answer) => {
+                        prop_assert_eq!(answer.into_inner().given_segmentation, given);
+                        seen.rooms.insert(mission_id, given);
+                    }
+                    Err(s) => expected(&s)?,
                 }
             }
             Call::Override(r, action, at) => {
@@ -470,6 +521,7 @@ async fn play(calls: Vec<Call>) -> Result<(), TestCaseError> {
     prop_assert_eq!(stored.iter().map(|m| m.id).collect::<Vec<_>>(), seen.missions.clone());
     for mission in &stored {
         prop_assert_eq!(mission.map_updates, seen.map_updates[&mission.id]);
+        prop_assert_eq!(mission.given_segmentation, seen.rooms.get(&mission.id).copied().unwrap_or(false));
         let robots = missions.list_robots(pb::ListRobotsRequest { mission_id: mission.id }).await.unwrap().into_inner();
         for robot in robots.robots {
             prop_assert_eq!(robot.last_map_seq, seen.robots[&robot.id].1);
