@@ -286,7 +286,9 @@ impl Mission {
         }
         let detail = match &rooms {
             Some(labels) => {
-                let mut distinct: Vec<u32> = labels.iter().copied().filter(|&l| l != 0).collect();
+                // Labels come in runs: one entry per run, not per cell, before sorting.
+                let mut distinct: Vec<u32> =
+                    labels.chunk_by(|a, b| a == b).map(|run| run[0]).filter(|&l| l != 0).collect();
                 distinct.sort_unstable();
                 distinct.dedup();
                 format!("{} rooms given {}", distinct.len(), note.reason)
