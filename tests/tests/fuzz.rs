@@ -300,18 +300,11 @@ enum Call {
     Rooms(usize, u8, Vec<u32>),
 }
 
-const POLICIES: [&str; 10] = [
-    "nearest",
-    "greedy",
-    "burgard",
-    "burgard-joint",
-    "simmons",
-    "minpos",
-    "segmentation",
-    "hungarian",
-    "colares",
-    "unassigned",
-];
+/// The catalogued policy `k` (modulo their number).
+fn policy_name(k: u8) -> String {
+    let catalogue = exploration::policy::catalogue();
+    catalogue[k as usize % catalogue.len()].name.to_owned()
+}
 
 fn call() -> impl Strategy<Value = Call> {
     let small_frame = (0.05..0.5f64, 1..60u32, 1..60u32).prop_map(|(resolution, width, height)| {
@@ -370,7 +363,7 @@ async fn play(calls: Vec<Call>) -> Result<(), TestCaseError> {
     for call in calls {
         match call {
             Call::Create(frame, p, lockstep) => {
-                let policy = Some(pb::PolicySpec { name: POLICIES[p as usize % 9].into(), params: Default::default() });
+                let policy = Some(pb::PolicySpec { name: policy_name(p), params: Default::default() });
                 let request =
                     pb::CreateMissionRequest { name: "fuzz".into(), frame, policy, lockstep, ..Default::default() };
                 match missions.create_mission(request).await {
@@ -449,10 +442,7 @@ async fn play(calls: Vec<Call>) -> Result<(), TestCaseError> {
             Call::Policy(m, p) => {
                 let request = pb::SetPolicyRequest {
                     mission_id: mission_of(&seen, m),
-                    policy: Some(pb::PolicySpec {
-                        name: POLICIES[p as usize % POLICIES.len()].into(),
-                        params: Default::default(),
-                    }),
+                    policy: Some(pb::PolicySpec { name: policy_name(p), params: Default::default() }),
                     ..Default::default()
                 };
                 if let Err(s) = missions.set_policy(request).await {

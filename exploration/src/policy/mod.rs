@@ -450,18 +450,7 @@ mod tests {
     #[test]
     fn configs_validate_names_and_ranges() {
         let err = PolicyConfig::default_for("teleport").unwrap_err();
-        for name in [
-            "nearest",
-            "greedy",
-            "burgard",
-            "burgard-joint",
-            "simmons",
-            "minpos",
-            "segmentation",
-            "hungarian",
-            "colares",
-            "unassigned",
-        ] {
+        for name in catalogue().iter().map(|d| d.name) {
             assert!(err.to_string().contains(name), "{err}");
         }
 

@@ -130,7 +130,8 @@ impl PlanningJob {
         let idle_pool = !self.order.is_empty() && targets.iter().all(Option::is_none);
         let mut complete = explored;
         let mut leftovers = Vec::new();
-        if !explored && idle_pool {
+        // A mission that knows nothing has no frontier yet, not none left.
+        if !explored && idle_pool && !self.nothing_known {
             // The policy found nothing for anyone: is anything left that some robot could explore?
             complete = true;
             for (part, cache) in self.parts.iter().zip(&mut caches) {
@@ -156,11 +157,6 @@ impl PlanningJob {
             if !complete {
                 leftovers.clear();
             }
-        }
-        // A mission that knows nothing has no frontier yet, not none left.
-        if self.nothing_known {
-            complete = false;
-            leftovers.clear();
         }
         let undecided = (self.order.is_empty() || self.nothing_known) && !explored;
         let frontier_targets = self
