@@ -320,9 +320,15 @@ struct RunArgs {
     #[arg(long)]
     stall: Option<f64>,
     /// Milliseconds of wall-clock time per step, to watch or steer the run
-    /// with coordctl as it happens; 0 runs flat out.
-    #[arg(long, default_value_t = 0)]
-    pace_ms: u64,
+    /// with coordctl as it happens; 0 runs flat out (the default, or 40
+    /// with --view).
+    #[arg(long)]
+    pace_ms: Option<u64>,
+    /// Serve the embedded executive's live web view at this address
+    /// (default 127.0.0.1:8080; port 0 picks a free one) and print its URL
+    /// and a read-only token; the view stays up after the run until Ctrl-C.
+    #[arg(long, num_args = 0..=1, default_missing_value = "127.0.0.1:8080")]
+    view: Option<std::net::SocketAddr>,
     /// After exploring, follow the executive's home tasks until every robot
     /// is back at its start (or the mission's rendezvous).
     #[arg(long)]
@@ -479,7 +485,13 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
     config.progress = !args.quiet && !args.json;
     config.lease_s = args.lease;
     config.stall_s = args.stall;
-    config.pace = (args.pace_ms > 0).then(|| Duration::from_millis(args.pace_ms));
+    if args.view.is_some() && config.server.is_some() {
+        bail!("--view shows the embedded executive; for one given by --server, start it with --http");
+    }
+    let pace_ms = args.pace_ms.unwrap_or(if args.view.is_some() { 40 } else { 0 });
+    config.pace = (pace_ms > 0).then(|| Duration::from_millis(pace_ms));
+    config.view = args.view;
+    config.linger = args.view.is_some();
     config.return_home = args.return_home;
     config.given_segmentation = args.given_segmentation;
     config.faults = args

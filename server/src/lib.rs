@@ -208,9 +208,9 @@ pub async fn run_with(
     let streams_end = CancellationToken::new();
     let sweeper = tokio::spawn(sweep_until(executive.clone(), clock, streams_end.clone()));
     let http_server = http_listener.map(|listener| {
-        tracing::info!(address = ?listener.local_addr().ok(), "HTTP serving /metrics");
+        tracing::info!(address = ?listener.local_addr().ok(), "HTTP serving the mission view (/) and /metrics");
         let stop = streams_end.clone().cancelled_owned();
-        let app = http::router(Arc::clone(&executive));
+        let app = http::router(Arc::clone(&executive), auth.clone(), streams_end.clone());
         tokio::spawn(async move { axum::serve(listener, app).with_graceful_shutdown(stop).await })
     });
     let (missions, fleet) = service::ExplorationService::new(Arc::clone(&executive), streams_end.clone())

@@ -20,6 +20,7 @@
 //! seed gives the same run on any machine at any load.
 
 use std::collections::BTreeMap;
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -193,6 +194,12 @@ pub struct RunConfig {
     /// §VI; see [`World::given_rooms`]) instead of letting it segment the
     /// explored map online.
     pub given_segmentation: bool,
+    /// Serve the embedded executive's live web view at this address (port 0:
+    /// any free port); its URL and a read-only token are printed.
+    pub view: Option<SocketAddr>,
+    /// After the run, keep the embedded executive (and its view) serving
+    /// until Ctrl-C, for a person still looking.
+    pub linger: bool,
 }
 
 /// The robot of the papers' simulations: 360° sensor of 4 m, point-sized, 0.5 m/s.
@@ -228,6 +235,8 @@ impl RunConfig {
             interference: Some(Interference { radius_m: 1.0, success: 0.7 }),
             comm_range: None,
             max_steps: 50_000,
+            view: None,
+            linger: false,
             stall_steps: 200,
             retry_budget: Duration::from_secs(120),
             bid_every: 5,
@@ -363,7 +372,8 @@ pub(crate) struct EmbeddedExecutive {
     clock: Option<Arc<coordinator::ManualClock>>,
     stop: CancellationToken,
     task: Option<tokio::task::JoinHandle<Result<(), coordinator::ServeError>>>,
-    _dir: Option<tempfile::TempDir>,
+    /// Holds the database (unless one was given) and the view's tokens file.
+    _dir: tempfile::TempDir,
 }
 
 impl Drop for EmbeddedExecutive {
@@ -374,12 +384,12 @@ impl Drop for EmbeddedExecutive {
 }
 
 impl EmbeddedExecutive {
-    async fn start(db: Option<PathBuf>, operator_token: String) -> Result<Self, SimError> {
+    async fn start(db: Option<PathBuf>, operator_token: String, view: Option<SocketAddr>) -> Result<Self, SimError> {
         // The fleet waits for every acknowledgement: a crash of this process
         // takes the fleet with it, so power-cut durability buys nothing here.
         // Its time is the simulation's: leases, stalls and replanning
         // intervals in simulated seconds, the same on any machine.
-        Self::start_with(db, operator_token, coordinator::Durability::Normal, true).await
+        Self::start_with(db, operator_token, coordinator::Durability::Normal, true, view).await
     }
 
     /// An executive as a deployment runs one (every commit survives a power
@@ -389,7 +399,7 @@ impl EmbeddedExecutive {
             Some(token) => token,
             None => coordinator::auth::random_operator_token().map_err(|e| SimError::Executive(e.to_string()))?,
         };
-        Self::start_with(None, token, coordinator::Durability::Full, false).await
+        Self::start_with(None, token, coordinator::Durability::Full, false, None).await
     }
 
     async fn start_with(
@@ -397,14 +407,11 @@ impl EmbeddedExecutive {
         operator_token: String,
         durability: coordinator::Durability,
         simulated_time: bool,
+        view: Option<SocketAddr>,
     ) -> Result<Self, SimError> {
-        let (path, dir) = match db {
-            Some(path) => (path, None),
-            None => {
-                let dir = tempfile::tempdir().map_err(|e| SimError::Executive(e.to_string()))?;
-                (dir.path().join("coordinator.db"), Some(dir))
-            }
-        };
+        let failed = |e: &dyn std::fmt::Display| SimError::Executive(e.to_string());
+        let dir = tempfile::tempdir().map_err(|e| failed(&e))?;
+        let path = db.unwrap_or_else(|| dir.path().join("coordinator.db"));
         let listener =
             tokio::net::TcpListener::bind("127.0.0.1:0").await.map_err(|e| SimError::Executive(e.to_string()))?;
         let address = listener.local_addr().map_err(|e| SimError::Executive(e.to_string()))?;
@@ -418,7 +425,22 @@ impl EmbeddedExecutive {
             config.executive.clock = clock;
             handle
         });
-        let task = tokio::spawn(coordinator::run(listener, shutdown, config));
+        let http = match view {
+            Some(address) => {
+                let http = tokio::net::TcpListener::bind(address).await.map_err(|e| failed(&e))?;
+                let viewer = coordinator::auth::random_operator_token().map_err(|e| failed(&e))?;
+                let tokens = dir.path().join("tokens");
+                let line = format!("viewer viewer {}\n", coordinator::auth::sha256_hex(&viewer));
+                std::fs::write(&tokens, line).map_err(|e| failed(&e))?;
+                config.operator_tokens_file = Some(tokens);
+                let url = http.local_addr().map_err(|e| failed(&e))?;
+                eprintln!("live view: http://{url}/  (read-only token: {viewer})");
+                Some(http)
+            }
+            None => None,
+        };
+        let listeners = coordinator::Listeners { grpc: listener, http };
+        let task = tokio::spawn(coordinator::run_with(listeners, shutdown, config));
         Ok(Self { url: format!("http://{address}"), token: operator_token, clock, stop, task: Some(task), _dir: dir })
     }
 
@@ -448,7 +470,7 @@ pub async fn run(config: &RunConfig) -> Result<RunReport, SimError> {
                 Some(token) => token.clone(),
                 None => coordinator::auth::random_operator_token().map_err(|e| SimError::Executive(e.to_string()))?,
             };
-            let executive = EmbeddedExecutive::start(config.db.clone(), token.clone()).await?;
+            let executive = EmbeddedExecutive::start(config.db.clone(), token.clone(), config.view).await?;
             let url = executive.url.clone();
             (Some(executive), url, Some(token))
         }
@@ -456,6 +478,10 @@ pub async fn run(config: &RunConfig) -> Result<RunReport, SimError> {
     let clock = embedded.as_ref().and_then(|e| e.clock.clone());
     let result = run_against(config, world, &url, token.as_deref(), clock).await;
     if let Some(executive) = embedded {
+        if config.linger && config.view.is_some() {
+            eprintln!("the run is over; the live view stays up until Ctrl-C");
+            let _ = tokio::signal::ctrl_c().await;
+        }
         executive.stop().await?;
     }
     result

@@ -63,10 +63,11 @@ struct Args {
     /// Seconds after which a connection with no open call is closed.
     #[arg(long, env = "COORDINATOR_IDLE_TIMEOUT", default_value_t = 300.0)]
     idle_timeout: f64,
-    /// Serve Prometheus metrics over HTTP at this address (GET /metrics); off
-    /// unless given.
-    #[arg(long, env = "COORDINATOR_METRICS")]
-    metrics: Option<SocketAddr>,
+    /// Serve HTTP at this address: the live mission view (GET /) and
+    /// Prometheus metrics (GET /metrics); off unless given. Plain HTTP: keep
+    /// it on loopback, or behind a TLS proxy, when it checks tokens.
+    #[arg(long, visible_alias = "metrics", env = "COORDINATOR_HTTP")]
+    http: Option<SocketAddr>,
     /// Log format.
     #[arg(long, env = "COORDINATOR_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     log_format: LogFormat,
@@ -121,11 +122,11 @@ async fn main() -> anyhow::Result<()> {
         planner_threads: args.planner_threads.unwrap_or(ExecutiveSettings::default().planner_threads).max(1),
         ..ExecutiveSettings::default()
     };
-    let http = match args.metrics {
+    let http = match args.http {
         Some(address) => Some(
             tokio::net::TcpListener::bind(address)
                 .await
-                .with_context(|| format!("cannot listen for metrics on {address}"))?,
+                .with_context(|| format!("cannot listen for HTTP on {address}"))?,
         ),
         None => None,
     };

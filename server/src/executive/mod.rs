@@ -12,7 +12,7 @@ use std::sync::{Arc, RwLock};
 
 use tokio::sync::watch;
 
-use exploration::grid::OccupancyGrid;
+use exploration::grid::{CellRect, OccupancyGrid};
 use exploration::math::Point2;
 
 use crate::clock::Clock;
@@ -181,6 +181,20 @@ pub struct MapView {
     pub frontier: Vec<Point2>,
     /// Robots and their targets.
     pub robots: Vec<RobotSummary>,
+}
+
+/// What changed in a mission's map since a watcher last looked.
+#[derive(Debug, Clone)]
+pub struct MapChanges {
+    /// The map's version now: pass it back to get the next changes.
+    pub version: u64,
+    /// The map's frame.
+    pub frame: exploration::grid::GridFrame,
+    /// Whether `patches` is the whole map (the watcher's version was too
+    /// old, from before a restart, or absent).
+    pub full: bool,
+    /// Changed rectangles with their cells' values, row-major from the bottom row.
+    pub patches: Vec<(CellRect, Vec<u8>)>,
 }
 
 /// The exploration executive.
@@ -562,6 +576,36 @@ impl Executive {
             frontier: mission.frontier().cells().into_iter().map(|c| frame.world_from_cell(c)).collect(),
             robots: Self::robot_summaries(&mission),
         })
+    }
+
+    /// The cells of a mission's map that changed after version `since`
+    /// (all of them without one), copied under the mission's lock at a
+    /// cost proportional to what changed.
+    pub async fn map_changes(&self, mission_id: MissionId, since: Option<u64>) -> Result<MapChanges, Error> {
+        let handle = self.mission_handle(mission_id)?;
+        let mission = handle.lock().await;
+        let grid = mission.grid();
+        let frame = *grid.frame();
+        let whole = frame.bounds();
+        let changed = since
+            .and_then(|v| mission.map_log().since(v))
+            .filter(|rects| rects.iter().map(CellRect::area).sum::<u64>() < whole.area());
+        let (full, rects) = match changed {
+            Some(rects) => (false, rects),
+            None => (true, vec![whole]),
+        };
+        let width = frame.width as usize;
+        let patches = rects
+            .iter()
+            .filter_map(|r| frame.clip(r))
+            .map(|r| {
+                let (x0, x1) = (r.x as usize, r.x_end() as usize);
+                let rows =
+                    (r.y as usize..r.y_end() as usize).flat_map(|y| &grid.cells()[y * width + x0..y * width + x1]);
+                (r, rows.copied().collect())
+            })
+            .collect();
+        Ok(MapChanges { version: mission.map_log().version(), frame, full, patches })
     }
 
     /// Overrides a robot's task for an operator (Simmons et al. 2000, §4.2);

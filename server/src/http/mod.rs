@@ -1,5 +1,8 @@
-//! HTTP beside gRPC, on its own listener: the Prometheus metrics (GET
-//! /metrics). It reads through the executive like any other client.
+//! HTTP beside gRPC, on its own listener: the Prometheus metrics
+//! (`GET /metrics`) and the live mission view ([`view`]). Both read through
+//! the executive like any other client.
+
+mod view;
 
 use std::sync::Arc;
 
@@ -8,15 +11,34 @@ use axum::extract::State;
 use axum::http::header;
 use axum::response::IntoResponse;
 use axum::routing::get;
+use tokio_util::sync::CancellationToken;
 
+use crate::auth::Authenticator;
 use crate::executive::Executive;
 
-/// The HTTP routes over `executive`.
-pub fn router(executive: Arc<Executive>) -> Router {
-    Router::new().route("/metrics", get(metrics)).with_state(executive)
+/// What every route reads.
+#[derive(Clone)]
+pub(crate) struct Shared {
+    executive: Arc<Executive>,
+    /// The tokens the gRPC services check.
+    auth: Arc<Authenticator>,
+    /// Cancelled when the executive stops: live streams end.
+    stop: CancellationToken,
 }
 
-async fn metrics(State(executive): State<Arc<Executive>>) -> impl IntoResponse {
-    let body = executive.metrics().await;
+/// The HTTP routes over `executive`; the view's API checks tokens with
+/// `auth`, and its streams end when `stop` is cancelled.
+pub fn router(executive: Arc<Executive>, auth: Authenticator, stop: CancellationToken) -> Router {
+    let shared = Shared { executive, auth: Arc::new(auth), stop };
+    Router::new()
+        .route("/metrics", get(metrics))
+        .route("/", get(view::page))
+        .route("/api/missions", get(view::missions))
+        .route("/api/missions/{id}/live", get(view::live))
+        .with_state(shared)
+}
+
+async fn metrics(State(shared): State<Shared>) -> impl IntoResponse {
+    let body = shared.executive.metrics().await;
     ([(header::CONTENT_TYPE, "application/openmetrics-text; version=1.0.0; charset=utf-8")], body)
 }

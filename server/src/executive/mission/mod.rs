@@ -12,6 +12,7 @@
 //! of Simmons et al. 2000, §4.2, forbidden regions and pausing.
 
 mod lifecycle;
+mod map_log;
 mod operator;
 mod planning;
 
@@ -128,6 +129,8 @@ pub(crate) struct Mission {
     unsaved_in_flight: Vec<RobotId>,
     /// Bumped whenever something an operator watches changes.
     changed: watch::Sender<u64>,
+    /// Where the fused map changed lately, for watchers.
+    map_log: map_log::MapLog,
 }
 
 impl Mission {
@@ -168,6 +171,7 @@ impl Mission {
             unsaved: std::collections::BTreeSet::new(),
             unsaved_in_flight: Vec::new(),
             changed: watch::channel(0).0,
+            map_log: map_log::MapLog::default(),
             record,
         };
         for robot in robots {
@@ -209,6 +213,11 @@ impl Mission {
 
     pub(crate) fn frontier(&self) -> &FrontierMap {
         &self.frontier
+    }
+
+    /// Where the fused map changed lately.
+    pub(crate) fn map_log(&self) -> &map_log::MapLog {
+        &self.map_log
     }
 
     pub(crate) fn robot_by_name(&self, name: &str) -> Option<&RobotRecord> {
@@ -589,6 +598,7 @@ impl Mission {
                     if let Some(rect) = change.changed {
                         let delta = self.frontier.update(self.fusion.grid(), rect);
                         self.frontier_churn += delta.added + delta.removed;
+                        self.map_log.record(rect);
                     }
                 }
                 // Prepared changesets were checked against the grid.

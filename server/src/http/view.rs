@@ -1,0 +1,451 @@
+//! The live mission view: one page, and the JSON it reads.
+//!
+//! `GET /` is the page (embedded in the binary, no build step). It reads
+//! `GET /api/missions`, and follows one mission through
+//! `GET /api/missions/{id}/live`, a stream of server-sent events: the first
+//! carries the whole map, each later one only the rectangles of the map that
+//! changed (from the mission's [map log](crate::executive::MapChanges)), the
+//! robots, the mission's counters, and now and then the latest tasks,
+//! events and segmentation. The page reads the stream with `fetch`, not
+//! `EventSource`, so that the token travels in the `Authorization` header,
+//! never in a URL.
+//!
+//! The API obeys the gRPC API's tokens: any valid token may read, as it may
+//! through `GetMission` and `WatchMission`.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::body::{Body, Bytes};
+use axum::extract::{FromRequestParts, Path, State};
+use axum::http::request::Parts;
+use axum::http::{StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use serde::Serialize;
+use tokio_util::sync::CancellationToken;
+
+use exploration::grid::{CellClass, classify};
+
+use super::Shared;
+use crate::auth::Caller;
+use crate::domain::{MissionEvent, TaskRecord};
+use crate::error::Error;
+use crate::executive::{Executive, MapChanges, MissionSummary, RobotSummary};
+use crate::store::TaskFilter;
+
+/// The page, with its script and style inline.
+const PAGE: &str = include_str!("view.html");
+
+/// Least time between two updates of one stream: a person cannot follow
+/// faster, and a busy mission would otherwise send one per map patch.
+const UPDATE_GAP: Duration = Duration::from_millis(250);
+
+/// How often the latest tasks and events (read from the store) are sent.
+const HISTORY_GAP: Duration = Duration::from_secs(1);
+
+/// How often a changed segmentation is sent (it is as large as the map).
+const SEGMENTATION_GAP: Duration = Duration::from_secs(5);
+
+/// Tasks and events shown.
+const LATEST: usize = 12;
+
+pub(super) async fn page() -> impl IntoResponse {
+    ([(header::CONTENT_TYPE, "text/html; charset=utf-8"), (header::CACHE_CONTROL, "no-store")], PAGE)
+}
+
+/// The caller, authenticated by the same rules as every gRPC call.
+pub(super) struct Authenticated;
+
+impl FromRequestParts<Shared> for Authenticated {
+    type Rejection = Response;
+
+    async fn from_request_parts(parts: &mut Parts, state: &Shared) -> Result<Self, Self::Rejection> {
+        let metadata = tonic::metadata::MetadataMap::from_headers(parts.headers.clone());
+        state
+            .auth
+            .caller(&metadata, |robot| state.executive.robot_token_hash(robot))
+            .map(|_: Caller| Authenticated)
+            .map_err(error_response)
+    }
+}
+
+/// `GET /api/missions`: every mission with its counters.
+pub(super) async fn missions(State(state): State<Shared>, _caller: Authenticated) -> Response {
+    let missions: Vec<MissionJson> = state.executive.missions().await.iter().map(MissionJson::from).collect();
+    json(&missions)
+}
+
+/// `GET /api/missions/{id}/live`: the mission as server-sent events.
+pub(super) async fn live(State(state): State<Shared>, Path(id): Path<u64>, _caller: Authenticated) -> Response {
+    let first = match Frame::first(&state.executive, id).await {
+        Ok(frame) => frame,
+        Err(e) => return error_response(e),
+    };
+    let (sender, receiver) = tokio::sync::mpsc::channel::<Bytes>(4);
+    tokio::spawn(follow(state.executive.clone(), state.stop.clone(), id, first, sender));
+    let body = Body::from_stream(futures::StreamExt::map(tokio_stream::wrappers::ReceiverStream::new(receiver), |b| {
+        Ok::<_, std::convert::Infallible>(b)
+    }));
+    (
+        [
+            (header::CONTENT_TYPE, "text/event-stream"),
+            (header::CACHE_CONTROL, "no-store"),
+            (header::HeaderName::from_static("x-accel-buffering"), "no"),
+        ],
+        body,
+    )
+        .into_response()
+}
+
+/// Sends `first`, then an update whenever the mission changes (at most one
+/// per [`UPDATE_GAP`]), until the viewer goes away, the mission is gone or
+/// the executive stops.
+async fn follow(
+    executive: Arc<Executive>,
+    stop: CancellationToken,
+    id: u64,
+    first: Frame,
+    sender: tokio::sync::mpsc::Sender<Bytes>,
+) {
+    let Ok(mut changed) = executive.subscribe(id).await else { return };
+    let mut cursor = first.cursor();
+    if sender.send(first.event()).await.is_err() {
+        return;
+    }
+    loop {
+        tokio::select! {
+            () = stop.cancelled() => return,
+            () = sender.closed() => return,
+            moved = changed.changed() => if moved.is_err() { return },
+        }
+        tokio::select! {
+            () = stop.cancelled() => return,
+            () = tokio::time::sleep(UPDATE_GAP) => {}
+        }
+        changed.borrow_and_update();
+        let frame = match Frame::next(&executive, id, &mut cursor).await {
+            Ok(frame) => frame,
+            Err(e) => {
+                tracing::debug!(mission = id, error = %e, "live view ends");
+                return;
+            }
+        };
+        if sender.send(frame.event()).await.is_err() {
+            return;
+        }
+    }
+}
+
+/// What a stream has sent so far.
+#[derive(Debug)]
+struct Cursor {
+    map_version: u64,
+    history_at: tokio::time::Instant,
+    segmentation_at: tokio::time::Instant,
+    segmentation_computed: Option<i64>,
+}
+
+/// One update of the live view.
+#[derive(Debug, Serialize)]
+struct Frame {
+    mission: MissionJson,
+    robots: Vec<RobotJson>,
+    map: MapJson,
+    /// Newest first; absent when not refreshed in this update.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    tasks: Option<Vec<TaskJson>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    events: Option<Vec<EventJson>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    segmentation: Option<SegmentationJson>,
+}
+
+impl Frame {
+    async fn first(executive: &Executive, id: u64) -> Result<Self, Error> {
+        let long_ago = tokio::time::Instant::now() - SEGMENTATION_GAP;
+        let mut cursor =
+            Cursor { map_version: 0, history_at: long_ago, segmentation_at: long_ago, segmentation_computed: None };
+        Self::read(executive, id, None, &mut cursor).await
+    }
+
+    async fn next(executive: &Executive, id: u64, cursor: &mut Cursor) -> Result<Self, Error> {
+        let since = Some(cursor.map_version);
+        Self::read(executive, id, since, cursor).await
+    }
+
+    async fn read(executive: &Executive, id: u64, since: Option<u64>, cursor: &mut Cursor) -> Result<Self, Error> {
+        let mission = MissionJson::from(&executive.mission(id).await?);
+        let robots = executive.robots(id).await?.iter().map(RobotJson::from).collect();
+        let changes = executive.map_changes(id, since).await?;
+        cursor.map_version = changes.version;
+        let now = tokio::time::Instant::now();
+        let (mut tasks, mut events) = (None, None);
+        if now.duration_since(cursor.history_at) >= HISTORY_GAP {
+            cursor.history_at = now;
+            let latest = executive.tasks(TaskFilter::mission(id, LATEST as u32)).await?;
+            tasks = Some(latest.iter().map(TaskJson::from).collect());
+            let all = executive.events(id).await?;
+            events = Some(all.iter().rev().take(LATEST).map(EventJson::from).collect());
+        }
+        let mut segmentation = None;
+        if now.duration_since(cursor.segmentation_at) >= SEGMENTATION_GAP {
+            cursor.segmentation_at = now;
+            if let Some(stored) = executive.segmentation(id).await?
+                && Some(stored.computed_at.millis()) != cursor.segmentation_computed
+            {
+                cursor.segmentation_computed = Some(stored.computed_at.millis());
+                segmentation = Some(SegmentationJson {
+                    computed_at_ms: stored.computed_at.millis(),
+                    width: stored.segmentation.frame.width,
+                    height: stored.segmentation.frame.height,
+                    runs: runs(stored.segmentation.labels.iter().copied()),
+                });
+            }
+        }
+        Ok(Self { mission, robots, map: MapJson::from(changes), tasks, events, segmentation })
+    }
+
+    fn cursor(&self) -> Cursor {
+        let now = tokio::time::Instant::now();
+        Cursor {
+            map_version: self.map.version,
+            history_at: now,
+            segmentation_at: now,
+            segmentation_computed: self.segmentation.as_ref().map(|s| s.computed_at_ms),
+        }
+    }
+
+    /// The frame as one server-sent event.
+    fn event(&self) -> Bytes {
+        let data = serde_json::to_string(self).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"));
+        Bytes::from(format!("event: update\ndata: {data}\n\n"))
+    }
+}
+
+#[derive(Debug, Serialize)]
+struct MissionJson {
+    id: u64,
+    name: String,
+    state: &'static str,
+    paused: bool,
+    policy: &'static str,
+    robots: usize,
+    known_cells: u64,
+    frontier_cells: u64,
+    /// Known cells over the cells of the map's frame, percent.
+    coverage_percent: f64,
+    replans: u64,
+    map_updates: u64,
+    width: u32,
+    height: u32,
+    resolution: f64,
+    origin: [f64; 2],
+    forbidden: Vec<[f64; 4]>,
+    given_segmentation: bool,
+}
+
+impl From<&MissionSummary> for MissionJson {
+    fn from(m: &MissionSummary) -> Self {
+        let frame = m.record.spec.frame;
+        let cells = frame.len().max(1) as f64;
+        Self {
+            id: m.record.id,
+            name: m.record.spec.name.clone(),
+            state: m.record.state.as_str(),
+            paused: m.record.paused,
+            policy: m.record.spec.policy.name(),
+            robots: m.robots,
+            known_cells: m.known_cells,
+            frontier_cells: m.frontier_cells,
+            coverage_percent: 100.0 * m.known_cells as f64 / cells,
+            replans: m.record.replans,
+            map_updates: m.record.map_updates,
+            width: frame.width,
+            height: frame.height,
+            resolution: frame.resolution,
+            origin: [frame.origin.x, frame.origin.y],
+            forbidden: m.forbidden.iter().map(|r| [r.min.x, r.min.y, r.max.x, r.max.y]).collect(),
+            given_segmentation: m.given_segmentation,
+        }
+    }
+}
+
+#[derive(Debug, Serialize)]
+struct RobotJson {
+    id: u64,
+    name: String,
+    state: &'static str,
+    lost: bool,
+    x: f64,
+    y: f64,
+    heading: f64,
+    target: Option<[f64; 2]>,
+    task: Option<&'static str>,
+    distance_m: f64,
+}
+
+impl From<&RobotSummary> for RobotJson {
+    fn from(r: &RobotSummary) -> Self {
+        let record = &r.record;
+        Self {
+            id: record.id,
+            name: record.name.clone(),
+            state: record.state.as_str(),
+            lost: record.lost,
+            x: record.pose.position.x,
+            y: record.pose.position.y,
+            heading: record.pose.heading,
+            target: r.target.map(|t| [t.x, t.y]),
+            task: r.task_kind.map(|k| k.as_str()),
+            distance_m: record.distance_m,
+        }
+    }
+}
+
+/// Cell classes as the page draws them.
+const UNKNOWN: u32 = 0;
+const FREE: u32 = 1;
+const OCCUPIED: u32 = 2;
+const UNCERTAIN: u32 = 3;
+
+#[derive(Debug, Serialize)]
+struct MapJson {
+    version: u64,
+    full: bool,
+    /// Changed rectangles; cells as runs of classes (0 unknown, 1 free,
+    /// 2 occupied, 3 uncertain), row-major from the bottom row.
+    patches: Vec<PatchJson>,
+}
+
+#[derive(Debug, Serialize)]
+struct PatchJson {
+    x: i32,
+    y: i32,
+    width: u32,
+    height: u32,
+    /// `[class, count, class, count, ...]`.
+    runs: Vec<u32>,
+}
+
+impl From<MapChanges> for MapJson {
+    fn from(changes: MapChanges) -> Self {
+        let class = |v: u8| match classify(v) {
+            CellClass::Unknown => UNKNOWN,
+            CellClass::Free => FREE,
+            CellClass::Occupied => OCCUPIED,
+            CellClass::Uncertain => UNCERTAIN,
+        };
+        let patches = changes
+            .patches
+            .into_iter()
+            .map(|(rect, cells)| PatchJson {
+                x: rect.x,
+                y: rect.y,
+                width: rect.width,
+                height: rect.height,
+                runs: runs(cells.into_iter().map(class)),
+            })
+            .collect();
+        Self { version: changes.version, full: changes.full, patches }
+    }
+}
+
+/// `[value, count, value, count, ...]`: a building's map is long runs of
+/// one class, so this is far smaller than one number per cell.
+fn runs(values: impl Iterator<Item = u32>) -> Vec<u32> {
+    let mut out = Vec::new();
+    for v in values {
+        match out.len() {
+            n if n >= 2 && out[n - 2] == v && out[n - 1] < u32::MAX => out[n - 1] += 1,
+            _ => out.extend([v, 1]),
+        }
+    }
+    out
+}
+
+#[derive(Debug, Serialize)]
+struct TaskJson {
+    id: u64,
+    robot_id: u64,
+    kind: &'static str,
+    state: &'static str,
+    target: [f64; 2],
+    created_by: String,
+    /// The latest transition: when, why.
+    at_ms: i64,
+    cause: String,
+}
+
+impl From<&TaskRecord> for TaskJson {
+    fn from(t: &TaskRecord) -> Self {
+        let last = t.transitions.last();
+        Self {
+            id: t.id,
+            robot_id: t.robot_id,
+            kind: t.kind.as_str(),
+            state: t.state.as_str(),
+            target: [t.target.x, t.target.y],
+            created_by: t.created_by.clone(),
+            at_ms: last.map_or(0, |l| l.at.millis()),
+            cause: last.map(|l| l.cause.clone()).unwrap_or_default(),
+        }
+    }
+}
+
+#[derive(Debug, Serialize)]
+struct EventJson {
+    at_ms: i64,
+    kind: String,
+    detail: String,
+    actor: String,
+}
+
+impl From<&MissionEvent> for EventJson {
+    fn from(e: &MissionEvent) -> Self {
+        Self { at_ms: e.at.millis(), kind: e.kind.clone(), detail: e.detail.clone(), actor: e.actor.clone() }
+    }
+}
+
+#[derive(Debug, Serialize)]
+struct SegmentationJson {
+    computed_at_ms: i64,
+    width: u32,
+    height: u32,
+    /// `[label, count, ...]` row-major from the bottom row; 0: no segment.
+    runs: Vec<u32>,
+}
+
+fn json(value: &impl Serialize) -> Response {
+    match serde_json::to_vec(value) {
+        Ok(body) => ([(header::CONTENT_TYPE, "application/json")], body).into_response(),
+        Err(e) => error_response(Error::Internal(e.to_string())),
+    }
+}
+
+/// The one place errors become HTTP answers: the status that matches the
+/// gRPC code, and the message as JSON.
+fn error_response(error: Error) -> Response {
+    let status = match &error {
+        Error::InvalidArgument(_) => StatusCode::BAD_REQUEST,
+        Error::NotFound(_) => StatusCode::NOT_FOUND,
+        Error::AlreadyExists(_) | Error::FailedPrecondition(_) => StatusCode::CONFLICT,
+        Error::ResourceExhausted(_) => StatusCode::TOO_MANY_REQUESTS,
+        Error::Unauthenticated(_) => StatusCode::UNAUTHORIZED,
+        Error::PermissionDenied(_) => StatusCode::FORBIDDEN,
+        Error::Overloaded(_) | Error::ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
+        Error::Store(_) | Error::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
+    };
+    let body = serde_json::json!({ "error": error.to_string() }).to_string();
+    (status, [(header::CONTENT_TYPE, "application/json")], body).into_response()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::runs;
+
+    #[test]
+    fn runs_count_repeats() {
+        assert_eq!(runs([1, 1, 1, 0, 2, 2].into_iter()), vec![1, 3, 0, 1, 2, 2]);
+        assert_eq!(runs(std::iter::empty()), Vec::<u32>::new());
+    }
+}
