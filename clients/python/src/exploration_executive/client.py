@@ -1,0 +1,332 @@
+"""A thin layer over the executive's gRPC API.
+
+:class:`Executive` is one connection: missions for operators, and robot
+registration. :class:`Robot` is one registered robot speaking with its own
+token: map patches from numpy grids with sequence numbers handled,
+heartbeats, bids, and an iterator over its assignments that reconnects when
+the executive restarts.
+
+The raw stubs stay at hand (``executive.missions``, ``executive.fleet``) with
+the messages in :mod:`exploration_executive.pb` for anything this layer does
+not wrap.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import math
+import time
+import warnings
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from urllib.parse import urlparse
+
+import grpc
+import numpy as np
+
+from ._proto.exploration.v1 import exploration_pb2 as pb
+from ._proto.exploration.v1 import exploration_pb2_grpc as rpc
+from .maps import MapServerMap
+from .patches import patch_from_grid
+
+#: Answers after which a stream or call is worth trying again: the executive
+#: is restarting, draining, or shedding load.
+RETRYABLE = {grpc.StatusCode.UNAVAILABLE, grpc.StatusCode.RESOURCE_EXHAUSTED}
+
+
+@dataclass(frozen=True)
+class Bid:
+    """A robot's estimate for one candidate target (Simmons et al. 2000)."""
+
+    x: float
+    y: float
+    path_cost: float
+    information_gain: float
+    gain_region: tuple[float, float, float, float] | None = None
+
+
+def _channel(address: str, root_certificates: bytes | None) -> tuple[grpc.Channel, str, bool]:
+    """A channel to ``host:port``, ``http://host:port`` or ``https://host:port``."""
+    parsed = urlparse(address if "://" in address else f"http://{address}")
+    if parsed.scheme not in ("http", "https") or not parsed.hostname or not parsed.port:
+        raise ValueError(f"address {address!r}: expected host:port, http://host:port or https://host:port")
+    target = f"{parsed.hostname}:{parsed.port}"
+    if parsed.scheme == "https":
+        credentials = grpc.ssl_channel_credentials(root_certificates=root_certificates)
+        return grpc.secure_channel(target, credentials), parsed.hostname, True
+    return grpc.insecure_channel(target), parsed.hostname, False
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+class Executive:
+    """A connection to one executive, for operators and for registering robots.
+
+    ``token`` is sent as ``authorization: Bearer`` on every call; the
+    executive runs open (no token) only on loopback and in tests. Use an
+    ``https://`` address (with ``root_certificates``, the CA's PEM, for a
+    private CA) whenever the token crosses a network.
+    """
+
+    def __init__(
+        self,
+        address: str,
+        token: str | None = None,
+        *,
+        root_certificates: bytes | None = None,
+        timeout_s: float = 10.0,
+    ) -> None:
+        self._channel, host, tls = _channel(address, root_certificates)
+        if token and not tls and not _is_loopback(host):
+            warnings.warn(f"the token crosses the network to {host} in plaintext: use https://", stacklevel=2)
+        self._address, self._root_certificates = address, root_certificates
+        self.token = token
+        self.timeout_s = timeout_s
+        self.closed = False
+        self.missions = rpc.MissionsStub(self._channel)
+        self.fleet = rpc.FleetStub(self._channel)
+
+    @property
+    def metadata(self) -> tuple[tuple[str, str], ...]:
+        return (("authorization", f"Bearer {self.token}"),) if self.token else ()
+
+    def close(self) -> None:
+        self.closed = True
+        self._channel.close()
+
+    def __enter__(self) -> "Executive":
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.close()
+
+    def _call(self, method, request):  # noqa: ANN001, ANN202 - any unary stub method
+        return method(request, metadata=self.metadata, timeout=self.timeout_s)
+
+    # Missions -----------------------------------------------------------
+
+    def create_mission(
+        self,
+        name: str,
+        area: MapServerMap | pb.MapFrame,
+        *,
+        policy: str = "minpos",
+        params: dict[str, float] | None = None,
+        lockstep: bool = False,
+    ) -> pb.Mission:
+        """A mission over ``area``: a map_server map (its frame only: the
+        building is what the robots explore) or an explicit frame."""
+        frame = area.frame() if isinstance(area, MapServerMap) else area
+        request = pb.CreateMissionRequest(
+            name=name,
+            frame=frame,
+            policy=pb.PolicySpec(name=policy, params=params or {}),
+            lockstep=lockstep,
+        )
+        return self._call(self.missions.CreateMission, request)
+
+    def mission(self, mission_id: int) -> pb.Mission:
+        return self._call(self.missions.GetMission, pb.GetMissionRequest(mission_id=mission_id))
+
+    def list_missions(self) -> list[pb.Mission]:
+        return list(self._call(self.missions.ListMissions, pb.ListMissionsRequest()).missions)
+
+    def robots(self, mission_id: int) -> list[pb.Robot]:
+        return list(self._call(self.missions.ListRobots, pb.ListRobotsRequest(mission_id=mission_id)).robots)
+
+    def watch_mission(self, mission_id: int) -> Iterator[pb.MissionView]:
+        """The mission and its robots each time they change (until cancelled)."""
+        request = pb.WatchMissionRequest(mission_id=mission_id)
+        yield from self.missions.WatchMission(request, metadata=self.metadata)
+
+    def override_robot(
+        self,
+        robot_id: int,
+        *,
+        goto: tuple[float, float] | None = None,
+        hold: bool = False,
+        home: bool = False,
+        release: bool = False,
+        cancel: bool = False,
+        actor: str = "",
+        reason: str = "",
+    ) -> pb.Robot:
+        """Steps in for one robot: exactly one of ``goto``, ``hold``,
+        ``home``, ``release`` or ``cancel``. An executive that checks tokens
+        records the token's name as the actor."""
+        chosen = [goto is not None, hold, home, release, cancel]
+        if sum(chosen) != 1:
+            raise ValueError("give exactly one of goto, hold, home, release, cancel")
+        request = pb.OverrideRobotRequest(robot_id=robot_id, actor=actor, reason=reason)
+        if goto is not None:
+            request.goto.CopyFrom(pb.Point(x=goto[0], y=goto[1]))
+        elif hold:
+            request.hold.SetInParent()
+        elif home:
+            request.home.SetInParent()
+        elif release:
+            request.release.SetInParent()
+        else:
+            request.cancel.SetInParent()
+        return self._call(self.missions.OverrideRobot, request)
+
+    # Robots ---------------------------------------------------------------
+
+    def register_robot(
+        self,
+        mission_id: int,
+        name: str,
+        pose: tuple[float, float, float],
+        *,
+        sensor_range_m: float = 4.0,
+        field_of_view_rad: float = 2 * math.pi,
+        speed_mps: float = 0.5,
+        footprint_radius_m: float = 0.0,
+    ) -> "Robot":
+        """Registers (or re-registers) a robot; it speaks with its own token from then on."""
+        request = pb.RegisterRobotRequest(
+            mission_id=mission_id,
+            name=name,
+            capabilities=pb.RobotCapabilities(
+                sensor_range_m=sensor_range_m,
+                field_of_view_rad=field_of_view_rad,
+                speed_mps=speed_mps,
+                footprint_radius_m=footprint_radius_m,
+            ),
+            pose=pb.Pose(x=pose[0], y=pose[1], theta=pose[2]),
+        )
+        response = self._call(self.fleet.RegisterRobot, request)
+        # An executive that runs open issues no tokens: the robot speaks as
+        # the connection does.
+        session = Executive(
+            self._address,
+            response.token or self.token,
+            root_certificates=self._root_certificates,
+            timeout_s=self.timeout_s,
+        )
+        return Robot(session, response.robot)
+
+
+class Robot:
+    """One registered robot, speaking with its own token."""
+
+    def __init__(self, session: Executive, record: pb.Robot) -> None:
+        self._session = session
+        self.record = record
+        self.id = record.id
+        self.mission_id = record.mission_id
+        self._seq = record.last_map_seq
+
+    @property
+    def token(self) -> str | None:
+        return self._session.token
+
+    def close(self) -> None:
+        self._session.close()
+
+    def update_map(
+        self,
+        grid: np.ndarray,
+        origin: tuple[int, int],
+        pose: tuple[float, float, float],
+        *,
+        encoding: str = "probability",
+        unknown: np.ndarray | None = None,
+    ) -> pb.UpdateMapResponse:
+        """Sends a rectangle of this robot's grid whose lower-left cell is
+        ``origin`` in the mission grid (see :func:`patch_from_grid`), with
+        the next sequence number. A resend of an update the executive had
+        already applied (its answer was lost) counts as applied."""
+        patch = patch_from_grid(grid, origin[0], origin[1], encoding=encoding, unknown=unknown)
+        self._seq += 1
+        request = pb.UpdateMapRequest(
+            robot_id=self.id, seq=self._seq, pose=pb.Pose(x=pose[0], y=pose[1], theta=pose[2]), patches=[patch]
+        )
+        try:
+            return self._session._call(self._session.fleet.UpdateMap, request)
+        except grpc.RpcError as error:
+            if error.code() == grpc.StatusCode.ALREADY_EXISTS:
+                assignment = self.assignment()
+                return pb.UpdateMapResponse(applied_seq=self._seq, assignment=assignment)
+            raise
+
+    def heartbeat(
+        self,
+        pose: tuple[float, float, float],
+        state: str = "moving",
+        *,
+        task_id: int = 0,
+        reason: str = "",
+    ) -> pb.Assignment:
+        """Reports the pose and state (``idle``, ``moving``, ``arrived`` or
+        ``failed``, the last two about ``task_id``); returns the assignment."""
+        states = {
+            "idle": pb.ROBOT_STATE_IDLE,
+            "moving": pb.ROBOT_STATE_MOVING,
+            "arrived": pb.ROBOT_STATE_ARRIVED,
+            "failed": pb.ROBOT_STATE_FAILED,
+        }
+        if state not in states:
+            raise ValueError(f"state {state!r}: expected one of {sorted(states)}")
+        request = pb.HeartbeatRequest(
+            robot_id=self.id,
+            pose=pb.Pose(x=pose[0], y=pose[1], theta=pose[2]),
+            state=states[state],
+            task_id=task_id,
+            reason=reason,
+        )
+        return self._session._call(self._session.fleet.Heartbeat, request).assignment
+
+    def submit_bids(self, bids: Sequence[Bid]) -> pb.SubmitBidsResponse:
+        """Replaces this robot's bids (for bidding policies such as ``simmons``)."""
+        messages = []
+        for bid in bids:
+            message = pb.Bid(
+                target=pb.Point(x=bid.x, y=bid.y), path_cost=bid.path_cost, information_gain=bid.information_gain
+            )
+            if bid.gain_region is not None:
+                x0, y0, x1, y1 = bid.gain_region
+                message.gain_region.CopyFrom(pb.Rect(min_x=x0, min_y=y0, max_x=x1, max_y=y1))
+            messages.append(message)
+        request = pb.SubmitBidsRequest(robot_id=self.id, bids=messages)
+        return self._session._call(self._session.fleet.SubmitBids, request)
+
+    def assignment(self) -> pb.Assignment:
+        """The current assignment."""
+        return self._session._call(self._session.fleet.GetAssignment, pb.GetAssignmentRequest(robot_id=self.id))
+
+    def assignments(self, *, max_backoff_s: float = 5.0) -> Iterator[pb.Assignment]:
+        """Every assignment from now on, the current one first.
+
+        When the stream ends or breaks because the executive stopped,
+        restarted or shed load, it waits (0.1 s, doubling up to ``max_backoff_s``) and
+        reconnects; the current assignment is sent again on reconnection,
+        so a change made meanwhile is not missed. It ends when the robot is
+        closed; other errors are raised.
+        """
+        backoff = 0.1
+        while True:
+            stream = self._session.fleet.WatchAssignment(
+                pb.WatchAssignmentRequest(robot_id=self.id), metadata=self._session.metadata
+            )
+            try:
+                for assignment in stream:
+                    backoff = 0.1
+                    yield assignment
+                # The executive ended the stream (it is shutting down): reconnect.
+            except grpc.RpcError as error:
+                if self._session.closed:
+                    return
+                if error.code() not in RETRYABLE:
+                    raise
+            finally:
+                stream.cancel()
+            time.sleep(backoff)
+            backoff = min(max_backoff_s, backoff * 2)

@@ -1,0 +1,104 @@
+"""A real coordinator for the tests: the workspace's binary (COORDINATOR_BIN,
+or target/debug/coordinator of this repository) on a free loopback port,
+with its database in the test's temporary folder."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import grpc
+import pytest
+
+REPOSITORY = Path(__file__).resolve().parents[3]
+TOKEN = "python-client-tests-operator-token"
+
+
+def coordinator_binary() -> Path:
+    path = Path(os.environ.get("COORDINATOR_BIN", REPOSITORY / "target" / "debug" / "coordinator"))
+    if not path.is_file():
+        pytest.skip(f"SKIPPED: no coordinator binary at {path} (cargo build -p coordinator, or set COORDINATOR_BIN)")
+    return path
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Coordinator:
+    """One coordinator process; restartable on the same port and database."""
+
+    def __init__(self, folder: Path, token: str | None) -> None:
+        self.binary = coordinator_binary()
+        self.port = free_port()
+        self.db = folder / "coordinator.db"
+        self.log = folder / "coordinator.log"
+        self.token = token
+        self.process: subprocess.Popen[bytes] | None = None
+
+    @property
+    def address(self) -> str:
+        return f"127.0.0.1:{self.port}"
+
+    def start(self) -> None:
+        command = [str(self.binary), "--listen", self.address, "--db", str(self.db)]
+        if self.token:
+            command += ["--operator-token", self.token]
+        with self.log.open("ab") as log:
+            self.process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+        channel = grpc.insecure_channel(self.address)
+        try:
+            grpc.channel_ready_future(channel).result(timeout=30)
+        finally:
+            channel.close()
+
+    def kill(self) -> None:
+        """SIGKILL: no goodbye to anyone."""
+        if self.process is not None:
+            self.process.send_signal(signal.SIGKILL)
+            self.process.wait()
+            self.process = None
+
+    def stop(self) -> None:
+        if self.process is not None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.kill()
+            self.process = None
+
+
+@pytest.fixture
+def coordinator(tmp_path: Path) -> Iterator[Coordinator]:
+    """An executive that checks tokens (operator token: TOKEN)."""
+    c = Coordinator(tmp_path, TOKEN)
+    c.start()
+    yield c
+    c.stop()
+
+
+@pytest.fixture
+def open_coordinator(tmp_path: Path) -> Iterator[Coordinator]:
+    """An executive that runs open, as on a developer's loopback."""
+    c = Coordinator(tmp_path, None)
+    c.start()
+    yield c
+    c.stop()
+
+
+def wait_for(predicate, what: str, within_s: float = 30.0):  # noqa: ANN001, ANN201
+    deadline = time.monotonic() + within_s
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")

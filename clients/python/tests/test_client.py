@@ -1,0 +1,138 @@
+"""The package against a real coordinator, used the way an integrator would."""
+
+from __future__ import annotations
+
+import queue
+import subprocess
+import sys
+import threading
+
+import grpc
+import numpy as np
+import pytest
+from conftest import REPOSITORY, TOKEN, Coordinator, wait_for
+
+from exploration_executive import Executive, MapServerMap, patch_from_grid, pb
+
+WAREHOUSE = REPOSITORY / "maps" / "nav2_warehouse.yaml"
+EXAMPLES = REPOSITORY / "clients" / "python" / "examples"
+
+
+def frame(width: int, height: int) -> pb.MapFrame:
+    return pb.MapFrame(resolution=0.1, origin=pb.Point(x=0.0, y=0.0), width=width, height=height)
+
+
+def test_a_token_is_required_and_robots_get_their_own(coordinator: Coordinator) -> None:
+    with Executive(coordinator.address) as anonymous, pytest.raises(grpc.RpcError) as refused:
+        anonymous.list_missions()
+    assert refused.value.code() == grpc.StatusCode.UNAUTHENTICATED
+    with Executive(coordinator.address, TOKEN) as operator:
+        mission = operator.create_mission("tokens", frame(20, 10), policy="nearest")
+        robot = operator.register_robot(mission.id, "r1", (0.5, 0.5, 0.0))
+        assert robot.token and robot.token != TOKEN and robot.token.startswith("rbt_")
+        # The robot's token may report as itself, not administer missions.
+        robot.heartbeat((0.5, 0.5, 0.0), "idle")
+        with Executive(coordinator.address, robot.token) as as_robot, pytest.raises(grpc.RpcError) as denied:
+            as_robot.create_mission("not mine", frame(5, 5))
+        assert denied.value.code() == grpc.StatusCode.PERMISSION_DENIED
+        robot.close()
+
+
+def test_numpy_grids_become_patches_of_the_fused_map(open_coordinator: Coordinator) -> None:
+    with Executive(open_coordinator.address) as executive:
+        mission = executive.create_mission("patches", frame(20, 10), policy="nearest")
+        robot = executive.register_robot(mission.id, "r1", (0.25, 0.15, 0.0))
+        grid = np.array([[0.05, 0.05, np.nan], [0.95, 0.05, 0.05]], dtype=np.float32)
+        first = robot.update_map(grid, (2, 1), (0.25, 0.15, 0.0))
+        # Log-odds, with an explicit unknown mask; the sequence number moves on by itself.
+        log_odds = np.log(grid / (1 - np.nan_to_num(grid, nan=0.5)))
+        mask = np.array([[False, True, True], [True, True, True]])
+        second = robot.update_map(log_odds, (10, 5), (0.25, 0.15, 0.0), encoding="log_odds", unknown=mask)
+        assert (first.applied_seq, second.applied_seq) == (1, 2)
+        snapshot = executive.missions.GetMap(pb.GetMapRequest(mission_id=mission.id))
+        cells = np.frombuffer(snapshot.cells, dtype=np.uint8).reshape(10, 20)
+        # Row 0 of the grid is the bottom row: grid[0] landed on row 1.
+        assert cells[1, 2] < 20 and cells[1, 3] < 20 and cells[1, 4] == 255, cells[1, :6]
+        assert cells[2, 2] > 80 and cells[2, 3] < 20
+        assert cells[5, 10] < 20 and cells[5, 11] == 255 and cells[6, 10] == 255
+        assert int((cells != 255).sum()) == 6
+        # A rectangle off the grid is the executive's to refuse, naming it.
+        with pytest.raises(grpc.RpcError) as refused:
+            robot.update_map(np.zeros((3, 3)), (19, 9), (0.25, 0.15, 0.0))
+        assert refused.value.code() == grpc.StatusCode.INVALID_ARGUMENT
+        assert "patch" in refused.value.details()
+        robot.close()
+
+
+def test_malformed_grids_are_refused_before_anything_is_sent() -> None:
+    with pytest.raises(ValueError, match="2-D"):
+        patch_from_grid(np.zeros(4), 0, 0)
+    with pytest.raises(ValueError, match="mask"):
+        patch_from_grid(np.zeros((2, 2)), 0, 0, unknown=np.zeros((3, 2), dtype=bool))
+    with pytest.raises(ValueError, match="off the grid"):
+        patch_from_grid(np.zeros((2, 2)), -1, 0)
+    with pytest.raises(ValueError, match="encoding"):
+        patch_from_grid(np.zeros((2, 2)), 0, 0, encoding="percent")
+
+
+def test_the_assignment_iterator_survives_an_executive_killed_and_restarted(coordinator: Coordinator) -> None:
+    operator = Executive(coordinator.address, TOKEN)
+    mission = operator.create_mission("restart", frame(60, 20), policy="nearest")
+    robot = operator.register_robot(mission.id, "r1", (0.5, 0.5, 0.0))
+    # Free cells with unknown beyond: a frontier for the robot to explore.
+    robot.update_map(np.full((10, 10), 0.05), (0, 0), (0.5, 0.5, 0.0))
+    received: queue.Queue[pb.Assignment] = queue.Queue()
+
+    def follow() -> None:
+        for assignment in robot.assignments(max_backoff_s=0.5):
+            received.put(assignment)
+
+    threading.Thread(target=follow, daemon=True).start()
+    first = wait_for(lambda: next((a for a in iter(received.get, None) if a.task_id), None), "a first task")
+    assert first.kind == pb.TASK_KIND_EXPLORE
+
+    coordinator.kill()
+    coordinator.start()
+    operator.close()
+    operator = Executive(coordinator.address, TOKEN)
+    operator.override_robot(robot.id, goto=(5.0, 1.0), reason="after the restart")
+
+    def goto_arrived() -> pb.Assignment | None:
+        try:
+            a = received.get(timeout=1)
+        except queue.Empty:
+            return None
+        return a if a.kind == pb.TASK_KIND_GOTO else None
+
+    after = wait_for(goto_arrived, "the override, through the reconnected stream")
+    assert (after.target.x, after.target.y) == pytest.approx((5.0, 1.0), abs=0.1)
+    robot.close()
+    operator.close()
+
+
+def test_the_example_robot_explores_the_bundled_warehouse(open_coordinator: Coordinator) -> None:
+    command = [sys.executable, str(EXAMPLES / "robot.py"), "--server", open_coordinator.address, "--map", str(WAREHOUSE)]
+    done = subprocess.run(command + ["--cell-size", "0.3"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert "MISSION_STATE_COMPLETED" in done.stdout, done.stdout
+    known_percent = float(done.stdout.split("(")[1].split(" %")[0])
+    area = MapServerMap.load(WAREHOUSE).coarsened(0.3)
+    free_percent = 100.0 * float((area.cells == 0).sum()) / area.cells.size
+    assert known_percent > free_percent, f"it explored {known_percent} % of the map, {free_percent} % is free"
+
+
+def test_the_example_operator_lists_watches_and_overrides(open_coordinator: Coordinator) -> None:
+    with Executive(open_coordinator.address) as executive:
+        mission = executive.create_mission("watched", frame(40, 20), policy="nearest")
+        robot = executive.register_robot(mission.id, "r1", (0.5, 0.5, 0.0))
+
+    def run(*args: str) -> str:
+        command = [sys.executable, str(EXAMPLES / "operator_console.py"), "--server", open_coordinator.address, *args]
+        done = subprocess.run(command, capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    assert "mission 1 'watched': active, nearest, 1 robots" in run("list")
+    assert "1 robots" in run("watch", str(mission.id), "--views", "1")
+    # The target is the centre of the cell holding the point.
+    assert "goto to (2.05, 1.05)" in run("override", str(robot.id), "--goto", "2,1", "--reason", "look")
