@@ -121,6 +121,9 @@ pub enum ServeError {
     /// The transport failed.
     #[error("transport error: {0}")]
     Transport(#[from] tonic::transport::Error),
+    /// The HTTP listener cannot serve HTTPS with the TLS settings.
+    #[error(transparent)]
+    Https(#[from] http::HttpsError),
 }
 
 /// Expires leases and detects stalls until `stop`: every
@@ -195,6 +198,15 @@ pub async fn run_with(
     let auth = auth::Authenticator::new(config.operator_token.as_deref(), config.operator_tokens_file.as_deref())?;
     let address = listener.local_addr().ok();
     warn_about_exposure(&auth, address, config.tls.is_some());
+    let streams_end = CancellationToken::new();
+    // Where gRPC has TLS, so has HTTP: the view's API carries tokens too.
+    let http_listener = match (http_listener, &config.tls) {
+        (Some(listener), Some(tls)) => {
+            Some(HttpListener::Tls(http::TlsListener::new(listener, tls, streams_end.clone())?))
+        }
+        (Some(listener), None) => Some(HttpListener::Plain(listener)),
+        (None, _) => None,
+    };
     let metrics = Arc::new(metrics::Metrics::new());
     let store = SqliteStore::open_measured(&config.db_path, config.durability, Some(Arc::clone(&metrics))).await?;
     let clock = config.executive.clock.clone();
@@ -205,13 +217,21 @@ pub async fn run_with(
             return Err(e.into());
         }
     };
-    let streams_end = CancellationToken::new();
     let sweeper = tokio::spawn(sweep_until(executive.clone(), clock, streams_end.clone()));
     let http_server = http_listener.map(|listener| {
-        tracing::info!(address = ?listener.local_addr().ok(), "HTTP serving the mission view (/) and /metrics");
         let stop = streams_end.clone().cancelled_owned();
         let app = http::router(Arc::clone(&executive), auth.clone(), streams_end.clone());
-        tokio::spawn(async move { axum::serve(listener, app).with_graceful_shutdown(stop).await })
+        match listener {
+            HttpListener::Plain(listener) => {
+                tracing::info!(address = ?listener.local_addr().ok(), "HTTP serving the mission view (/) and /metrics");
+                tokio::spawn(async move { axum::serve(listener, app).with_graceful_shutdown(stop).await })
+            }
+            HttpListener::Tls(listener) => {
+                let address = axum::serve::Listener::local_addr(&listener).ok();
+                tracing::info!(?address, "HTTPS serving the mission view (/) and /metrics");
+                tokio::spawn(async move { axum::serve(listener, app).with_graceful_shutdown(stop).await })
+            }
+        }
     });
     let (missions, fleet) = service::ExplorationService::new(Arc::clone(&executive), streams_end.clone())
         .into_servers(auth, MAX_MESSAGE_BYTES);
@@ -289,6 +309,12 @@ pub async fn run_with(
     served?;
     tracing::info!("executive stopped");
     Ok(())
+}
+
+/// The HTTP listener, plain or behind TLS.
+enum HttpListener {
+    Plain(TcpListener),
+    Tls(http::TlsListener),
 }
 
 /// Says in the log when callers are not checked, or when their tokens would

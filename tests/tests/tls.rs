@@ -87,3 +87,64 @@ async fn mutual_tls_admits_only_certified_clients_and_clients_check_the_server()
     assert!(list(&plaintext, None).await.is_err(), "no plaintext on a TLS port");
     exec.stop().await;
 }
+
+/// GET `path` over HTTPS, trusting `ca`: the status line and the body.
+async fn https_get(address: std::net::SocketAddr, ca: &std::path::Path, path: &str, token: &str) -> (String, String) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio_rustls::rustls::pki_types::pem::PemObject;
+    use tokio_rustls::rustls::pki_types::{CertificateDer, ServerName};
+    use tokio_rustls::rustls::{ClientConfig, RootCertStore};
+
+    let mut roots = RootCertStore::empty();
+    for cert in CertificateDer::pem_file_iter(ca).unwrap() {
+        roots.add(cert.unwrap()).unwrap();
+    }
+    let provider = std::sync::Arc::new(tokio_rustls::rustls::crypto::ring::default_provider());
+    let config = ClientConfig::builder_with_provider(provider)
+        .with_safe_default_protocol_versions()
+        .unwrap()
+        .with_root_certificates(roots)
+        .with_no_client_auth();
+    let connector = tokio_rustls::TlsConnector::from(std::sync::Arc::new(config));
+    let tcp = tokio::net::TcpStream::connect(address).await.unwrap();
+    let mut tls = connector.connect(ServerName::try_from("127.0.0.1").unwrap(), tcp).await.unwrap();
+    let request =
+        format!("GET {path} HTTP/1.1\r\nHost: {address}\r\nAuthorization: Bearer {token}\r\nConnection: close\r\n\r\n");
+    tls.write_all(request.as_bytes()).await.unwrap();
+    let mut response = Vec::new();
+    // A peer that closes without close_notify is fine here: the body is complete.
+    let _ = tls.read_to_end(&mut response).await;
+    let response = String::from_utf8_lossy(&response).into_owned();
+    let (head, body) = response.split_once("\r\n\r\n").expect("an HTTP response");
+    (head.lines().next().unwrap_or("").to_owned(), body.to_owned())
+}
+
+/// The view's listener carries tokens as gRPC does: where gRPC has TLS,
+/// HTTP is HTTPS with the same certificate, and plaintext gets nothing.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_live_view_speaks_https_where_the_executive_has_tls() {
+    let dir = tempfile::tempdir().unwrap();
+    let pki = Pki::new(dir.path());
+    let mut config = coordinator::Config::new(dir.path().join("https.db"));
+    config.tls = Some(coordinator::TlsConfig::from_files(&pki.server_cert, &pki.server_key, None).unwrap());
+    config.operator_token = Some(TOKEN.into());
+    let exec = TestExecutive::start_with_http(config).await;
+    let url = format!("https://{}", exec.address);
+    let tls = ClientTls::from_files(Some(&pki.ca), None, None).unwrap();
+    wait_until_serving_tls(&url, &tls, Duration::from_secs(30)).await;
+    let http = exec.http.unwrap();
+
+    let (status, body) = https_get(http, &pki.ca, "/api/missions", TOKEN).await;
+    assert!(status.starts_with("HTTP/1.1 200"), "{status}");
+    assert_eq!(body.trim(), "[]");
+    let (status, _) = https_get(http, &pki.ca, "/api/missions", "not-the-token-at-all").await;
+    assert!(status.starts_with("HTTP/1.1 401"), "{status}");
+
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut plain = tokio::net::TcpStream::connect(http).await.unwrap();
+    plain.write_all(b"GET /api/missions HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await.unwrap();
+    let mut answer = Vec::new();
+    let _ = tokio::time::timeout(Duration::from_secs(20), plain.read_to_end(&mut answer)).await;
+    assert!(!String::from_utf8_lossy(&answer).contains("HTTP/1.1"), "no plaintext HTTP answer on the TLS port");
+    exec.stop().await;
+}

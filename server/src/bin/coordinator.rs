@@ -64,8 +64,8 @@ struct Args {
     #[arg(long, env = "COORDINATOR_IDLE_TIMEOUT", default_value_t = 300.0)]
     idle_timeout: f64,
     /// Serve HTTP at this address: the live mission view (GET /) and
-    /// Prometheus metrics (GET /metrics); off unless given. Plain HTTP: keep
-    /// it on loopback, or behind a TLS proxy, when it checks tokens.
+    /// Prometheus metrics (GET /metrics); off unless given. HTTPS, with the
+    /// same certificate and client CA, when gRPC has TLS.
     #[arg(long, visible_alias = "metrics", env = "COORDINATOR_HTTP")]
     http: Option<SocketAddr>,
     /// Log format.

@@ -1,8 +1,12 @@
 //! HTTP beside gRPC, on its own listener: the Prometheus metrics
 //! (`GET /metrics`) and the live mission view ([`view`]). Both read through
-//! the executive like any other client.
+//! the executive like any other client. HTTPS ([`tls`]) when gRPC has TLS.
 
+mod tls;
 mod view;
+
+pub use tls::HttpsError;
+pub(crate) use tls::TlsListener;
 
 use std::sync::Arc;
 
