@@ -76,22 +76,25 @@ class Coordinator:
             self.process = None
 
 
+def serve(folder: Path, token: str | None) -> Iterator[Coordinator]:
+    c = Coordinator(folder, token)
+    c.start()
+    try:
+        yield c
+    finally:
+        c.stop()
+
+
 @pytest.fixture
 def coordinator(tmp_path: Path) -> Iterator[Coordinator]:
     """An executive that checks tokens (operator token: TOKEN)."""
-    c = Coordinator(tmp_path, TOKEN)
-    c.start()
-    yield c
-    c.stop()
+    yield from serve(tmp_path, TOKEN)
 
 
 @pytest.fixture
 def open_coordinator(tmp_path: Path) -> Iterator[Coordinator]:
     """An executive that runs open, as on a developer's loopback."""
-    c = Coordinator(tmp_path, None)
-    c.start()
-    yield c
-    c.stop()
+    yield from serve(tmp_path, None)
 
 
 def wait_for(predicate, what: str, within_s: float = 30.0):  # noqa: ANN001, ANN201
