@@ -195,10 +195,14 @@ fn chromium() -> Option<PathBuf> {
     })
 }
 
-/// Loads `url` in headless Chromium for `budget_ms` of page time; writes a
-/// screenshot to `png`, and returns the page's DOM then.
+/// Loads `url` in headless Chromium: a screenshot to `png`, and the page's
+/// DOM. Each is a fresh page load, and headless Chromium may stop a load
+/// before the first server-sent event has arrived (its page time runs
+/// ahead of the network), so a load that shows no update yet is repeated,
+/// a few times at most; the DOM returned is the first that shows one, and
+/// the screenshot the first taken after it whose canvas shows a robot.
 async fn browse(chromium: &Path, url: &str, png: &Path, profile: &Path) -> String {
-    let run = |what: &[String]| {
+    let run = |what: String| {
         let mut command = std::process::Command::new(chromium);
         command.args([
             "--headless",
@@ -206,24 +210,31 @@ async fn browse(chromium: &Path, url: &str, png: &Path, profile: &Path) -> Strin
             "--disable-gpu",
             "--hide-scrollbars",
             "--window-size=1280,800",
-            "--virtual-time-budget=4000",
+            "--virtual-time-budget=8000",
         ]);
         command.arg(format!("--user-data-dir={}", profile.display()));
-        command.args(what).arg(url);
+        command.arg(what).arg(url);
         command
     };
-    let (shot, dom) = (run(&[format!("--screenshot={}", png.display())]), run(&["--dump-dom".to_owned()]));
-    tokio::task::spawn_blocking(move || {
-        let mut shot = shot;
-        let status = shot.output().expect("Chromium runs");
-        assert!(status.status.success(), "Chromium failed: {}", String::from_utf8_lossy(&status.stderr));
-        let mut dom = dom;
-        let out = dom.output().expect("Chromium runs");
+    let output = |mut command: std::process::Command| async move {
+        let out = tokio::task::spawn_blocking(move || command.output().expect("Chromium runs")).await.unwrap();
         assert!(out.status.success(), "Chromium failed: {}", String::from_utf8_lossy(&out.stderr));
         String::from_utf8_lossy(&out.stdout).into_owned()
-    })
-    .await
-    .unwrap()
+    };
+    let mut dom = String::new();
+    for _ in 0..6 {
+        dom = output(run("--dump-dom".to_owned())).await;
+        if dom.contains(" updates<") {
+            break;
+        }
+    }
+    for _ in 0..6 {
+        output(run(format!("--screenshot={}", png.display()))).await;
+        if canvas_pixels(png).contains(&EXPLORING_ROBOT_RGB) {
+            break;
+        }
+    }
+    dom
 }
 
 /// The mission's known cells, from the executive.
