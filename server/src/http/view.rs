@@ -77,12 +77,13 @@ pub(super) async fn missions(State(state): State<Shared>, _caller: Authenticated
 
 /// `GET /api/missions/{id}/live`: the mission as server-sent events.
 pub(super) async fn live(State(state): State<Shared>, Path(id): Path<u64>, _caller: Authenticated) -> Response {
-    let first = match Frame::first(&state.executive, id).await {
+    let mut cursor = Cursor::default();
+    let first = match Frame::read(&state.executive, id, &mut cursor).await {
         Ok(frame) => frame,
         Err(e) => return error_response(e),
     };
     let (sender, receiver) = tokio::sync::mpsc::channel::<Bytes>(4);
-    tokio::spawn(follow(state.executive.clone(), state.stop.clone(), id, first, sender));
+    tokio::spawn(follow(state.executive.clone(), state.stop.clone(), id, (first, cursor), sender));
     let body = Body::from_stream(futures::StreamExt::map(tokio_stream::wrappers::ReceiverStream::new(receiver), |b| {
         Ok::<_, std::convert::Infallible>(b)
     }));
@@ -104,11 +105,10 @@ async fn follow(
     executive: Arc<Executive>,
     stop: CancellationToken,
     id: u64,
-    first: Frame,
+    (first, mut cursor): (Frame, Cursor),
     sender: tokio::sync::mpsc::Sender<Bytes>,
 ) {
     let Ok(mut changed) = executive.subscribe(id).await else { return };
-    let mut cursor = first.cursor();
     if sender.send(first.event()).await.is_err() {
         return;
     }
@@ -123,7 +123,7 @@ async fn follow(
             () = tokio::time::sleep(UPDATE_GAP) => {}
         }
         changed.borrow_and_update();
-        let frame = match Frame::next(&executive, id, &mut cursor).await {
+        let frame = match Frame::read(&executive, id, &mut cursor).await {
             Ok(frame) => frame,
             Err(e) => {
                 tracing::debug!(mission = id, error = %e, "live view ends");
@@ -136,13 +136,18 @@ async fn follow(
     }
 }
 
-/// What a stream has sent so far.
-#[derive(Debug)]
+/// What a stream has sent so far; `None`: nothing yet.
+#[derive(Debug, Default)]
 struct Cursor {
-    map_version: u64,
-    history_at: tokio::time::Instant,
-    segmentation_at: tokio::time::Instant,
+    map_version: Option<u64>,
+    history_at: Option<tokio::time::Instant>,
+    segmentation_at: Option<tokio::time::Instant>,
     segmentation_computed: Option<i64>,
+}
+
+/// Whether `last` is none, or at least `gap` before `now`.
+fn due(last: Option<tokio::time::Instant>, now: tokio::time::Instant, gap: Duration) -> bool {
+    last.is_none_or(|t| now.duration_since(t) >= gap)
 }
 
 /// One update of the live view.
@@ -161,35 +166,25 @@ struct Frame {
 }
 
 impl Frame {
-    async fn first(executive: &Executive, id: u64) -> Result<Self, Error> {
-        let long_ago = tokio::time::Instant::now() - SEGMENTATION_GAP;
-        let mut cursor =
-            Cursor { map_version: 0, history_at: long_ago, segmentation_at: long_ago, segmentation_computed: None };
-        Self::read(executive, id, None, &mut cursor).await
-    }
-
-    async fn next(executive: &Executive, id: u64, cursor: &mut Cursor) -> Result<Self, Error> {
-        let since = Some(cursor.map_version);
-        Self::read(executive, id, since, cursor).await
-    }
-
-    async fn read(executive: &Executive, id: u64, since: Option<u64>, cursor: &mut Cursor) -> Result<Self, Error> {
+    /// The mission now, with what changed since `cursor` (everything the
+    /// first time), moving `cursor` on.
+    async fn read(executive: &Executive, id: u64, cursor: &mut Cursor) -> Result<Self, Error> {
         let mission = MissionJson::from(&executive.mission(id).await?);
         let robots = executive.robots(id).await?.iter().map(RobotJson::from).collect();
-        let changes = executive.map_changes(id, since).await?;
-        cursor.map_version = changes.version;
+        let changes = executive.map_changes(id, cursor.map_version).await?;
+        cursor.map_version = Some(changes.version);
         let now = tokio::time::Instant::now();
         let (mut tasks, mut events) = (None, None);
-        if now.duration_since(cursor.history_at) >= HISTORY_GAP {
-            cursor.history_at = now;
+        if due(cursor.history_at, now, HISTORY_GAP) {
+            cursor.history_at = Some(now);
             let latest = executive.tasks(TaskFilter::mission(id, LATEST as u32)).await?;
             tasks = Some(latest.iter().map(TaskJson::from).collect());
             let all = executive.events(id).await?;
             events = Some(all.iter().rev().take(LATEST).map(EventJson::from).collect());
         }
         let mut segmentation = None;
-        if now.duration_since(cursor.segmentation_at) >= SEGMENTATION_GAP {
-            cursor.segmentation_at = now;
+        if due(cursor.segmentation_at, now, SEGMENTATION_GAP) {
+            cursor.segmentation_at = Some(now);
             if let Some(stored) = executive.segmentation(id).await?
                 && Some(stored.computed_at.millis()) != cursor.segmentation_computed
             {
@@ -203,16 +198,6 @@ impl Frame {
             }
         }
         Ok(Self { mission, robots, map: MapJson::from(changes), tasks, events, segmentation })
-    }
-
-    fn cursor(&self) -> Cursor {
-        let now = tokio::time::Instant::now();
-        Cursor {
-            map_version: self.map.version,
-            history_at: now,
-            segmentation_at: now,
-            segmentation_computed: self.segmentation.as_ref().map(|s| s.computed_at_ms),
-        }
     }
 
     /// The frame as one server-sent event.
