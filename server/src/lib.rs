@@ -31,6 +31,7 @@ pub mod error;
 pub mod executive;
 pub mod http;
 pub mod metrics;
+pub mod run_to_end;
 pub mod service;
 pub mod store;
 pub mod validate;
@@ -275,6 +276,7 @@ pub async fn run_with(
     let serve = server
         .layer(connections::ActivityLayer)
         .layer(metrics::RpcMetricsLayer(Arc::clone(&metrics)))
+        .layer(run_to_end::RunToEndLayer)
         .add_service(health_service)
         .add_service(reflection)
         .add_service(reflection_alpha)

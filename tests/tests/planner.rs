@@ -114,3 +114,59 @@ async fn a_burst_beyond_a_missions_queue_is_shed_and_the_mission_recovers() {
     assert!(metric(&metrics, "coordinator_shed_total") >= shed.len() as f64, "{metrics}");
     exec.stop().await;
 }
+
+/// A mission does not hold its robots back while the disk writes: map
+/// updates of one mission that arrive while one is being written are
+/// written together in the next transaction (the mission's lock is not held
+/// across the write), and every one acknowledged is durable.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_missions_map_updates_share_the_disks_flushes() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("flushes.db");
+    let exec = TestExecutive::start_with_http(coordinator::Config::new(db.clone())).await;
+    let mut missions = exec.missions();
+    let mission = missions
+        .create_mission(pb::CreateMissionRequest {
+            name: "flushes".into(),
+            frame: Some(common::frame(60, 30)),
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(!mission.lockstep, "planned off the request path, as a live fleet is");
+    let mut fleet = exec.fleet();
+    let mut robots = Vec::new();
+    for i in 0..16 {
+        robots.push(register(&mut fleet, mission.id, &format!("r{i}"), 0.5 + f64::from(i) * 0.2, 0.5).await.id);
+    }
+    let mut calls = tokio::task::JoinSet::new();
+    for (i, robot) in robots.iter().copied().enumerate() {
+        let mut client = exec.fleet();
+        calls.spawn(async move {
+            for seq in 1..=10u64 {
+                let x = ((i as u32 * 3 + seq as u32) % 55, i as u32);
+                let at = 0.5 + i as f64 * 0.2;
+                client.update_map(update(robot, seq, at, 0.5, vec![patch(x.0, x.1, 5, 5, 0.1)])).await.unwrap();
+            }
+        });
+    }
+    calls.join_all().await;
+    let metrics = common::http_get(exec.http.unwrap(), "/metrics").await;
+    let (changesets, transactions) = (
+        metric(&metrics, "coordinator_store_commit_group_sum"),
+        metric(&metrics, "coordinator_store_commit_group_count"),
+    );
+    assert!(changesets > transactions, "{changesets} changesets in {transactions} transactions: one at a time");
+    let live = missions.get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_eq!(live.map_updates, 160);
+    exec.stop().await;
+
+    let exec = TestExecutive::start(&db).await;
+    let mut missions = exec.missions();
+    let stored = missions.get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_eq!(stored.map_updates, 160);
+    let listed = missions.list_robots(pb::ListRobotsRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert!(listed.robots.iter().all(|r| r.last_map_seq == 10), "{:?}", listed.robots);
+    exec.stop().await;
+}

@@ -152,6 +152,88 @@ async fn a_full_disk_refuses_writes_keeps_reads_and_loses_nothing() {
     exec.stop().await;
 }
 
+/// Map updates of one mission are applied while their writes are under way
+/// (the executive's `writer`). When the disk refuses some of several in
+/// flight, the mission drops what was not written: every update
+/// acknowledged is in the store, nothing else is, and the live state (the
+/// count, each robot's sequence number, the fused map) is what the store
+/// holds, before and after a restart.
+/// Both when plans are made off the request path and in lockstep (where a
+/// plan made on the refused update is refused with it).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn concurrent_map_updates_on_a_filling_disk_lose_nothing_acknowledged() {
+    updates_on_a_filling_disk(false).await;
+    updates_on_a_filling_disk(true).await;
+}
+
+async fn updates_on_a_filling_disk(lockstep: bool) {
+    let Some(disk) = common::Tmpfs::mount("4m", "the concurrent full-disk test") else { return };
+    let db = disk.path().join("full.db");
+    let exec = TestExecutive::start(&db).await;
+    let mut missions = exec.missions();
+    let mut fleet = exec.fleet();
+    let request = pb::CreateMissionRequest {
+        name: "filling".into(),
+        frame: Some(common::frame(200, 200)),
+        policy: Some(pb::PolicySpec { name: "nearest".into(), params: Default::default() }),
+        lockstep,
+        ..Default::default()
+    };
+    let mission = missions.create_mission(request).await.unwrap().into_inner();
+    let mut robots = Vec::new();
+    for i in 0..6 {
+        robots.push(register(&mut fleet, mission.id, &format!("r{i}"), 1.0 + f64::from(i) * 0.2, 1.0).await.id);
+    }
+    let ballast = disk.fill_leaving(160 * 1024);
+    let send = |robot: u64, i: usize, seq: u64| {
+        let band = patch((seq % 3 * 60) as u32, i as u32 * 30, 60, 30, 0.1 + 0.1 * (seq % 2) as f32);
+        update(robot, seq, 1.0 + i as f64 * 0.2, 1.0, vec![band])
+    };
+    let mut calls = tokio::task::JoinSet::new();
+    for (i, robot) in robots.iter().copied().enumerate() {
+        let mut client = exec.fleet();
+        calls.spawn(async move {
+            let (mut seq, mut refusals) = (1u64, 0);
+            while refusals < 4 {
+                assert!(seq < 500, "the disk never filled");
+                match client.update_map(send(robot, i, seq)).await {
+                    Ok(_) => seq += 1,
+                    Err(status) => {
+                        assert_eq!(status.code(), Code::ResourceExhausted, "{status:?}");
+                        refusals += 1;
+                    }
+                }
+            }
+            (robot, seq - 1)
+        });
+    }
+    let acknowledged = calls.join_all().await;
+    let total: u64 = acknowledged.iter().map(|(_, last)| last).sum();
+    let live = missions.get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_eq!(live.map_updates, total, "the live state counts what was acknowledged");
+    let listed = missions.list_robots(pb::ListRobotsRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    for (robot, last) in &acknowledged {
+        let seq = listed.robots.iter().find(|r| r.id == *robot).unwrap().last_map_seq;
+        assert_eq!(seq, *last, "robot {robot}: its last acknowledged update");
+    }
+
+    // Space comes back: every robot goes on where it was acknowledged.
+    std::fs::remove_file(ballast).unwrap();
+    for (i, (robot, last)) in acknowledged.iter().enumerate() {
+        fleet.update_map(send(*robot, i, last + 1)).await.expect("writes work again once space is freed");
+    }
+    let live_map = missions.get_map(pb::GetMapRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    exec.stop().await;
+
+    let exec = TestExecutive::start(&db).await;
+    let mut missions = exec.missions();
+    let stored = missions.get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_eq!(stored.map_updates, total + robots.len() as u64);
+    let stored_map = missions.get_map(pb::GetMapRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_eq!(stored_map.cells, live_map.cells, "the map the store holds is the one the robots were shown");
+    exec.stop().await;
+}
+
 /// Defect 3: region ids were taken with load() + 1 under each mission's own
 /// lock, so simultaneous calls on different missions collided.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

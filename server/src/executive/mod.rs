@@ -3,8 +3,9 @@
 //! Requests for one mission are serialized by that mission's lock, which
 //! makes the executive deterministic for a given order of requests (the
 //! simulator relies on it) and lets each operation be prepared, committed and
-//! applied without interference. Policies run on the blocking pool, off the
-//! async workers.
+//! applied without interference; a map update releases the lock while its
+//! write is made durable ([`writer`]). Policies run on the planner's
+//! threads, off the async workers.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -27,9 +28,11 @@ use exploration::policy::PolicyConfig;
 
 mod mission;
 mod planner;
+mod writer;
 
-use mission::{Mission, StoredMission};
+use mission::Mission;
 use planner::{MissionCell, Planner};
+use writer::Writer;
 
 use crate::metrics::Metrics;
 
@@ -201,6 +204,7 @@ pub struct MapChanges {
 #[derive(Debug)]
 pub struct Executive {
     store: Arc<dyn Store>,
+    writer: Writer,
     settings: ExecutiveSettings,
     missions: RwLock<BTreeMap<MissionId, Arc<MissionCell>>>,
     robot_missions: RwLock<HashMap<RobotId, MissionId>>,
@@ -223,44 +227,20 @@ impl Executive {
         let mut missions = BTreeMap::new();
         let mut robot_missions = HashMap::new();
         let mut total_cells = 0u64;
-        let now = settings.clock.now();
+        let writer = Writer::new(Arc::clone(&store), settings.clock.clone());
         for record in store.missions().await? {
             let id = record.id;
-            let robots = store.robots(&record).await?;
-            let patches = store.patches(&record).await?;
-            let open_tasks = store.open_tasks(id).await?;
-            let blacklist = store.blacklist(id).await?;
-            let forbidden = store.forbidden_regions(id).await?;
-            let rooms = store.given_segmentation(id).await?;
-            tracing::info!(
-                mission = id,
-                robots = robots.len(),
-                patches = patches.len(),
-                open_tasks = open_tasks.len(),
-                "restoring mission"
-            );
-            for robot in &robots {
-                robot_missions.insert(robot.id, id);
-            }
-            let mut bids = Vec::new();
-            for robot in &robots {
-                bids.push((robot.id, store.bids(robot.id).await?));
-            }
             total_cells += record.spec.frame.len() as u64;
-            let mut mission = Mission::restore(
-                record,
-                StoredMission { robots, patches, open_tasks, blacklist, forbidden, rooms },
-                now,
-            )?;
-            for (robot, robot_bids) in bids {
-                mission.set_bids(robot, &robot_bids);
+            let mission = writer.load(record).await?;
+            for robot in mission.robots() {
+                robot_missions.insert(robot.id, id);
             }
             missions.insert(id, Arc::new(MissionCell::new(mission)));
         }
         let missions_count = missions.len();
         let next_task_id = Arc::new(AtomicU64::new(store.max_task_id().await?));
         let planner = Planner::new(
-            Arc::clone(&store),
+            writer.clone(),
             settings.clock.clone(),
             settings.planner_threads,
             Arc::clone(&next_task_id),
@@ -279,6 +259,7 @@ impl Executive {
         let tokens = store.robot_tokens().await?.into_iter().collect();
         Ok(Self {
             store,
+            writer,
             settings,
             missions: RwLock::new(missions),
             robot_missions: RwLock::new(robot_missions),
@@ -402,7 +383,7 @@ impl Executive {
                 robot_tokens: vec![(resumed.id, hash.clone())],
                 ..Changeset::default()
             };
-            let changes = self.store.commit(changes).await?;
+            let changes = self.writer.write(&mut mission, changes).await?;
             self.tokens.write().unwrap_or_else(|e| e.into_inner()).insert(resumed.id, hash);
             mission.apply(changes);
             let token = secret.token(resumed.id);
@@ -462,19 +443,19 @@ impl Executive {
         let seq = update.seq;
         let peers = update.peers.clone();
         let changes = mission.prepare_update(robot_id, update, Timestamp::now())?;
-        // Durable before it is applied or acknowledged.
-        self.commit(&mut mission, changes).await?;
+        // Applied once queued, acknowledged once durable (see `writer`).
+        let queued = self.writer.queue(&mut mission, changes.clone()).await?;
+        mission.apply(changes);
         mission.heard_from(robot_id, self.settings.clock.now());
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
         }
         self.planner.after_change(&handle, &mut mission).await;
-        Ok(MapUpdateOutcome {
-            applied_seq: seq,
-            assignment: mission.assignment(robot_id)?,
-            frontier_cells: mission.frontier_cells() as u64,
-            mission_state: mission.record().state,
-        })
+        let assignment = mission.assignment(robot_id);
+        let (frontier_cells, mission_state) = (mission.frontier_cells() as u64, mission.record().state);
+        drop(mission);
+        self.writer.durable(queued, &handle).await?;
+        Ok(MapUpdateOutcome { applied_seq: seq, assignment: assignment?, frontier_cells, mission_state })
     }
 
     /// Replaces a robot's bids; the `simmons` policy replans on them.
@@ -484,7 +465,7 @@ impl Executive {
         mission.check_bids(robot_id, &bids)?;
         let changes =
             Changeset { bids: Some((robot_id, bids.clone())), at: Some(Timestamp::now()), ..Changeset::default() };
-        self.store.commit(changes).await?;
+        self.writer.write(&mut mission, changes).await?;
         mission.set_bids(robot_id, &bids);
         mission.mark_bids_fresh(robot_id);
         mission.heard_from(robot_id, self.settings.clock.now());
@@ -748,7 +729,7 @@ impl Executive {
                 continue;
             };
             // One mission's failure does not keep the others from their sweep.
-            let changes = match self.store.commit(changes).await {
+            let changes = match self.writer.write(&mut mission, changes).await {
                 Ok(changes) => changes,
                 Err(e) => {
                     failed = Some(e);
@@ -763,7 +744,7 @@ impl Executive {
             self.planner.after_change(&handle, &mut mission).await;
         }
         match failed {
-            Some(e) => Err(e.into()),
+            Some(e) => Err(e),
             None => Ok(()),
         }
     }
@@ -781,7 +762,7 @@ impl Executive {
     /// Writes the robot records changed by liveness reports only.
     async fn flush_unsaved(&self, mission: &mut Mission) {
         let Some(changes) = mission.take_unsaved() else { return };
-        if let Err(e) = self.store.commit(changes).await {
+        if let Err(e) = self.writer.write(mission, changes).await {
             tracing::warn!(mission = mission.record().id, error = %e, "robot poses not written; tried again at the next sweep");
             mission.keep_unsaved_again();
         }
@@ -819,7 +800,8 @@ impl Executive {
     /// Makes a changeset durable, then applies it to the mission in memory:
     /// the order every change follows, so that nothing acknowledged is lost.
     async fn commit(&self, mission: &mut Mission, changes: Changeset) -> Result<(), Error> {
-        mission.apply(self.store.commit(changes).await?);
+        let changes = self.writer.write(mission, changes).await?;
+        mission.apply(changes);
         Ok(())
     }
 }

@@ -22,11 +22,11 @@ use tokio::task::JoinSet;
 use tokio_util::sync::CancellationToken;
 
 use super::mission::Mission;
+use super::writer::Writer;
 use crate::clock::Clock;
 use crate::domain::Timestamp;
 use crate::error::Error;
 use crate::metrics::Metrics;
-use crate::store::Store;
 
 /// How many times a plan that no longer fits is made again before the
 /// planner waits for the next trigger (a mission whose team changes faster
@@ -121,7 +121,7 @@ impl PlanThreads {
 #[derive(Debug)]
 pub(crate) struct Planner {
     threads_pool: PlanThreads,
-    store: Arc<dyn Store>,
+    writer: Writer,
     clock: Clock,
     /// Threads one plan may use.
     threads: usize,
@@ -139,7 +139,7 @@ pub(crate) struct Planner {
 
 impl Planner {
     pub(crate) fn new(
-        store: Arc<dyn Store>,
+        writer: Writer,
         clock: Clock,
         threads: usize,
         task_ids: Arc<AtomicU64>,
@@ -148,7 +148,7 @@ impl Planner {
     ) -> Arc<Self> {
         Arc::new(Self {
             threads_pool: PlanThreads::start(threads.max(1)),
-            store,
+            writer,
             clock,
             threads: threads.max(1),
             permits: Semaphore::new(threads.max(1)),
@@ -232,7 +232,7 @@ impl Planner {
         basis: &super::mission::PlanBasis,
     ) -> Result<(), Error> {
         let changes = mission.prepare_plan(outcome, reason, Timestamp::now(), &self.task_ids);
-        let changes = self.store.commit(changes).await?;
+        let changes = self.writer.write(mission, changes).await?;
         let reassigned = changes.new_tasks.len();
         let demands = mission.demands();
         mission.apply(changes);

@@ -47,6 +47,14 @@ pub enum StoreError {
         /// Why.
         source: std::io::Error,
     },
+    /// Not written because a changeset it follows was not (see [`Store::submit`]).
+    #[error("not written: a changeset it follows failed ({cause})")]
+    Abandoned {
+        /// What the first failure of the chain means for the caller.
+        kind: FailureKind,
+        /// The first failure of the chain.
+        cause: String,
+    },
 }
 
 /// What a failure means for the caller.
@@ -65,6 +73,9 @@ pub enum FailureKind {
 impl StoreError {
     /// What this failure means for the caller.
     pub fn kind(&self) -> FailureKind {
+        if let Self::Abandoned { kind, .. } = self {
+            return *kind;
+        }
         let Self::Database(sqlx::Error::Database(e)) = self else {
             return match self {
                 Self::Database(sqlx::Error::Io(_) | sqlx::Error::PoolTimedOut) => FailureKind::Transient,
@@ -119,6 +130,45 @@ pub struct LoggedPatch {
     pub seq: u64,
     /// The cells.
     pub patch: Patch,
+}
+
+/// Names a submitted changeset, for the ones that follow it (see [`Store::submit`]).
+pub type CommitId = u64;
+
+/// A changeset queued for writing.
+#[derive(Debug)]
+pub struct Submitted {
+    /// Its name, for the changesets that follow it.
+    pub id: CommitId,
+    answer: Answer,
+}
+
+#[derive(Debug)]
+enum Answer {
+    Queued(tokio::sync::oneshot::Receiver<Result<Changeset, StoreError>>),
+    Ready(Box<Result<Changeset, StoreError>>),
+}
+
+impl Submitted {
+    /// A changeset the writer will answer for on `answer`.
+    pub fn queued(id: CommitId, answer: tokio::sync::oneshot::Receiver<Result<Changeset, StoreError>>) -> Self {
+        Self { id, answer: Answer::Queued(answer) }
+    }
+
+    /// A changeset answered already (an empty one, which writes nothing).
+    pub fn ready(id: CommitId, outcome: Result<Changeset, StoreError>) -> Self {
+        Self { id, answer: Answer::Ready(Box::new(outcome)) }
+    }
+
+    /// The changeset back once it is durable, or why it was not written.
+    pub async fn durable(self) -> Result<Changeset, StoreError> {
+        match self.answer {
+            Answer::Ready(outcome) => *outcome,
+            Answer::Queued(answer) => {
+                answer.await.map_err(|_| StoreError::Corrupt("the store closed before the write".to_owned()))?
+            }
+        }
+    }
 }
 
 /// Everything one operation writes, committed atomically.
@@ -260,10 +310,20 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// The rooms given with a mission, if it has them.
     async fn given_segmentation(&self, mission_id: MissionId) -> Result<Option<Rooms>, StoreError>;
 
+    /// Queues a changeset to be written after every changeset queued before
+    /// it, and returns once it is queued; [`Submitted::durable`] then waits
+    /// for the write. With `after`, the changeset is written only if the
+    /// changeset `after` was: one prepared on a state that included another
+    /// must not outlive it. Otherwise it fails with [`StoreError::Abandoned`],
+    /// and so does the next one that follows it.
+    async fn submit(&self, changes: Changeset, after: Option<CommitId>) -> Result<Submitted, StoreError>;
+
     /// Writes a changeset in one transaction (possibly with others): all of
     /// it is durable when this returns it back, none of it when it returns
     /// an error.
-    async fn commit(&self, changes: Changeset) -> Result<Changeset, StoreError>;
+    async fn commit(&self, changes: Changeset) -> Result<Changeset, StoreError> {
+        self.submit(changes, None).await?.durable().await
+    }
 
     /// Writes a consistent copy of the whole store, taken while it is in
     /// use, to a new file at `path`.

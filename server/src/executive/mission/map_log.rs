@@ -17,6 +17,12 @@ pub(crate) struct MapLog {
 }
 
 impl MapLog {
+    /// A log that goes on from `version` of another, remembering nothing:
+    /// every watcher is sent the whole map next.
+    pub(crate) fn after(version: u64) -> Self {
+        Self { version: version + 1, recent: VecDeque::new() }
+    }
+
     /// A patch changed the cells inside `rect`.
     pub(crate) fn record(&mut self, rect: CellRect) {
         self.version += 1;

@@ -5,7 +5,10 @@
 //! `prepare_*` checks the request against the state and describes its effect
 //! as a [`Changeset`] without touching anything; the executive commits that
 //! changeset to the store; [`Mission::apply`] then makes it the live state
-//! and pushes changed assignments to the robots' watchers.
+//! and pushes changed assignments to the robots' watchers. A map update is
+//! applied as soon as its write is queued and acknowledged once the write
+//! is durable; if the write fails, the mission is reloaded from the store
+//! (`executive::writer`).
 //!
 //! [`lifecycle`] adds what keeps a fleet honest (leases, stall detection,
 //! blacklisted targets, completion with reasons); [`operator`] the overrides
@@ -37,7 +40,7 @@ use crate::domain::{
     Timestamp, Transition,
 };
 use crate::error::Error;
-use crate::store::{Changeset, LoggedPatch, MissionCounters, TaskChange};
+use crate::store::{Changeset, CommitId, LoggedPatch, MissionCounters, TaskChange};
 
 /// How close to its home a robot counts as home, metres.
 const HOME_TOLERANCE_M: f64 = 0.5;
@@ -131,6 +134,11 @@ pub(crate) struct Mission {
     changed: watch::Sender<u64>,
     /// Where the fused map changed lately, for watchers.
     map_log: map_log::MapLog,
+    /// The last changeset queued for the store; the next one follows it
+    /// (see [`crate::store::Store::submit`]).
+    last_commit: Option<CommitId>,
+    /// How many times the mission was reloaded after a failed write.
+    generation: u64,
 }
 
 impl Mission {
@@ -172,6 +180,8 @@ impl Mission {
             unsaved_in_flight: Vec::new(),
             changed: watch::channel(0).0,
             map_log: map_log::MapLog::default(),
+            last_commit: None,
+            generation: 0,
             record,
         };
         for robot in robots {
@@ -193,6 +203,51 @@ impl Mission {
 
     pub(crate) fn record(&self) -> &MissionRecord {
         &self.record
+    }
+
+    /// The last changeset queued for the store.
+    pub(crate) fn last_commit(&self) -> Option<CommitId> {
+        self.last_commit
+    }
+
+    /// `id` was queued for the store after every earlier changeset.
+    pub(crate) fn set_last_commit(&mut self, id: CommitId) {
+        self.last_commit = Some(id);
+    }
+
+    /// The last changeset was refused on its own, after every earlier one
+    /// was written: the next follows none.
+    pub(crate) fn chain_broken_by_own_failure(&mut self) {
+        self.last_commit = None;
+    }
+
+    /// Counts reloads after failed writes, to reload once per failure.
+    pub(crate) fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// Becomes `fresh`, the mission as the store holds it after a write that
+    /// the live state held already failed. The robots' assignment streams,
+    /// the operators' watchers and what is known only in memory about each
+    /// robot's liveness carry over; the map's watchers are sent the whole
+    /// map again.
+    pub(crate) fn replace_after_failed_write(&mut self, fresh: Mission) {
+        let old = std::mem::replace(self, fresh);
+        self.generation = old.generation + 1;
+        self.last_commit = None;
+        self.map_log = map_log::MapLog::after(old.map_log.version());
+        self.pending_replan = Some("the mission was reloaded after a failed write".to_owned());
+        for (id, old_slot) in old.robots {
+            let Some(assignment) = self.robots.get(&id).map(|slot| self.assignment_for(&slot.record)) else { continue };
+            let Some(slot) = self.robots.get_mut(&id) else { continue };
+            slot.watch = old_slot.watch;
+            slot.peers = old_slot.peers;
+            slot.last_heard = old_slot.last_heard;
+            slot.progress = old_slot.progress;
+            slot.watch.send_replace(assignment);
+        }
+        self.changed = old.changed;
+        self.changed.send_modify(|v| *v += 1);
     }
 
     pub(crate) fn robot_count(&self) -> usize {

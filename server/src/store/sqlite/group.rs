@@ -5,12 +5,14 @@
 //! With `synchronous = FULL` every commit waits for the disk, and SQLite
 //! writes one transaction at a time; a thousand robots reporting several
 //! times a second would queue behind the disk one changeset after another.
-//! Grouping pays the wait once per group. Changesets of one mission never
-//! wait side by side (the mission's lock orders them), so a group never
-//! holds two that depend on each other's outcome. If a group fails, its
-//! changesets are written again one by one, so that one bad changeset (a
-//! constraint it breaks) fails alone.
+//! Grouping pays the wait once per group. If a group fails, its changesets
+//! are written again one by one, in order, so that one bad changeset (a
+//! constraint it breaks) fails alone, with those that follow it
+//! ([`crate::store::Store::submit`]): a mission's map updates are queued
+//! while earlier ones are still being written, so one group may hold
+//! several changesets of a mission, each prepared on the one before.
 
+use std::collections::HashMap;
 use std::time::Instant;
 
 use sqlx::sqlite::SqlitePool;
@@ -19,13 +21,19 @@ use tokio::sync::{mpsc, oneshot};
 
 use super::write;
 use crate::metrics::Metrics;
-use crate::store::{Changeset, StoreError};
+use crate::store::{Changeset, CommitId, FailureKind, StoreError};
 
 /// Most changesets written in one transaction.
 const MAX_GROUP: usize = 256;
 
-/// One changeset waiting, and where to answer.
-pub(super) type Pending = (Changeset, oneshot::Sender<Result<Changeset, StoreError>>);
+/// One changeset waiting, what it follows, and where to answer.
+#[derive(Debug)]
+pub(super) struct Pending {
+    pub(super) id: CommitId,
+    pub(super) after: Option<CommitId>,
+    pub(super) changes: Changeset,
+    pub(super) reply: oneshot::Sender<Result<Changeset, StoreError>>,
+}
 
 /// The queue the committer drains; closing it (dropping every sender) ends
 /// the committer once the queue is empty.
@@ -38,27 +46,41 @@ pub(super) fn start(
 }
 
 async fn run(pool: SqlitePool, mut queue: mpsc::Receiver<Pending>, metrics: Option<std::sync::Arc<Metrics>>) {
-    let mut group = Vec::with_capacity(MAX_GROUP);
-    while queue.recv_many(&mut group, MAX_GROUP).await > 0 {
+    let mut received = Vec::with_capacity(MAX_GROUP);
+    let mut broken = Broken::default();
+    while queue.recv_many(&mut received, MAX_GROUP).await > 0 {
         let started = Instant::now();
+        let group: Vec<Pending> = received.drain(..).filter_map(|p| broken.unless_abandoned(p)).collect();
         let size = group.len();
-        let (changesets, replies): (Vec<Changeset>, Vec<_>) = group.drain(..).unzip();
+        if size == 0 {
+            continue;
+        }
+        let changesets: Vec<Changeset> = group.iter().map(|p| p.changes.clone()).collect();
         match write_group(&pool, &changesets).await {
             Ok(()) => {
-                for (changes, reply) in changesets.into_iter().zip(replies) {
-                    let _ = reply.send(Ok(changes));
+                for pending in group {
+                    let _ = pending.reply.send(Ok(pending.changes));
                 }
             }
-            Err(e) if size == 1 => {
-                if let Some(reply) = replies.into_iter().next() {
-                    let _ = reply.send(Err(e));
-                }
-            }
-            // Written again one by one: only the changesets that fail alone fail.
-            Err(_) => {
-                for (changes, reply) in changesets.into_iter().zip(replies) {
-                    let outcome = write_group(&pool, std::slice::from_ref(&changes)).await.map(|()| changes);
-                    let _ = reply.send(outcome);
+            // Written again one by one: only the changesets that fail alone
+            // fail, and those that follow them.
+            Err(e) => {
+                let mut first_error = Some(e);
+                for pending in group {
+                    let Some(pending) = broken.unless_abandoned(pending) else { continue };
+                    let outcome = match first_error.take().filter(|_| size == 1) {
+                        Some(e) => Err(e),
+                        None => write_group(&pool, std::slice::from_ref(&pending.changes)).await,
+                    };
+                    match outcome {
+                        Ok(()) => {
+                            let _ = pending.reply.send(Ok(pending.changes));
+                        }
+                        Err(e) => {
+                            broken.failed(pending.id, &e);
+                            let _ = pending.reply.send(Err(e));
+                        }
+                    }
                 }
             }
         }
@@ -66,6 +88,29 @@ async fn run(pool: SqlitePool, mut queue: mpsc::Receiver<Pending>, metrics: Opti
             metrics.store_commit.observe(started.elapsed().as_secs_f64());
             metrics.commit_group.observe(size as f64);
         }
+    }
+}
+
+/// The changesets that were not written and may still be followed, each
+/// with the first failure of its chain. A changeset is followed by at most
+/// one other, which takes its place here when it is abandoned in turn: one
+/// entry per broken chain.
+#[derive(Debug, Default)]
+struct Broken(HashMap<CommitId, (FailureKind, String)>);
+
+impl Broken {
+    /// `pending`, unless it follows a changeset that was not written: then
+    /// it is answered with [`StoreError::Abandoned`] and takes that one's place.
+    fn unless_abandoned(&mut self, pending: Pending) -> Option<Pending> {
+        let Some((kind, cause)) = pending.after.and_then(|after| self.0.remove(&after)) else { return Some(pending) };
+        self.0.insert(pending.id, (kind, cause.clone()));
+        let _ = pending.reply.send(Err(StoreError::Abandoned { kind, cause }));
+        None
+    }
+
+    /// `id` failed with `error`.
+    fn failed(&mut self, id: CommitId, error: &StoreError) {
+        self.0.insert(id, (error.kind(), error.to_string()));
     }
 }
 

@@ -11,6 +11,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use async_trait::async_trait;
@@ -18,7 +19,7 @@ use sqlx::Connection;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteSynchronous};
 
 use super::lock::StoreLock;
-use super::{Changeset, LoggedPatch, Store, StoreError, TaskFilter};
+use super::{Changeset, CommitId, LoggedPatch, Store, StoreError, Submitted, TaskFilter};
 use crate::domain::{
     Bid, BlacklistEntry, MissionEvent, MissionId, MissionRecord, MissionSpec, Region, RobotId, RobotRecord, RobotSpec,
     Rooms, StoredSegmentation, TaskId, TaskKind, TaskRecord, Timestamp, Transition,
@@ -46,6 +47,8 @@ pub struct SqliteStore {
     /// The group committer's queue (see [`group`]); taken at close.
     commits: Arc<std::sync::Mutex<Option<tokio::sync::mpsc::Sender<group::Pending>>>>,
     committer: Arc<std::sync::Mutex<Option<tokio::task::JoinHandle<()>>>>,
+    /// The name of the next changeset submitted.
+    next_commit: Arc<AtomicU64>,
     /// Held until the store is closed or every clone of it is dropped.
     lock: Arc<std::sync::Mutex<Option<StoreLock>>>,
 }
@@ -83,6 +86,7 @@ impl SqliteStore {
             path: path.to_owned(),
             commits: Arc::new(std::sync::Mutex::new(Some(commits))),
             committer: Arc::new(std::sync::Mutex::new(Some(committer))),
+            next_commit: Arc::new(AtomicU64::new(1)),
             lock: Arc::new(std::sync::Mutex::new(Some(lock))),
         })
     }
@@ -375,16 +379,19 @@ impl Store for SqliteStore {
         row.map(|row| rows::rooms_from_row(&row, frame)).transpose()
     }
 
-    async fn commit(&self, changes: Changeset) -> Result<Changeset, StoreError> {
+    async fn submit(&self, changes: Changeset, after: Option<CommitId>) -> Result<Submitted, StoreError> {
         if changes.is_empty() {
-            return Ok(changes);
+            // Writes nothing: whatever follows it follows what it follows.
+            let id = after.unwrap_or_else(|| self.next_commit.fetch_add(1, Ordering::Relaxed));
+            return Ok(Submitted::ready(id, Ok(changes)));
         }
         let queue = self.commits.lock().unwrap_or_else(|e| e.into_inner()).clone();
         let closed = || StoreError::Corrupt("the store is closed".to_owned());
         let queue = queue.ok_or_else(closed)?;
+        let id = self.next_commit.fetch_add(1, Ordering::Relaxed);
         let (reply, answer) = tokio::sync::oneshot::channel();
-        queue.send((changes, reply)).await.map_err(|_| closed())?;
-        answer.await.map_err(|_| closed())?
+        queue.send(group::Pending { id, after, changes, reply }).await.map_err(|_| closed())?;
+        Ok(Submitted::queued(id, answer))
     }
 
     async fn backup(&self, path: &Path) -> Result<(), StoreError> {

@@ -6,7 +6,7 @@ use super::*;
 use crate::domain::{
     Actor, Leftover, LeftoverReason, LifecycleSettings, MissionState, Pose, ReplanSettings, RobotState, TaskState,
 };
-use crate::store::{MissionCounters, TaskChange};
+use crate::store::{FailureKind, MissionCounters, TaskChange};
 use exploration::fusion::Patch;
 use exploration::grid::{Cell, CellRect, GridFrame};
 use exploration::math::Point2;
@@ -408,4 +408,54 @@ async fn a_group_commit_fails_only_the_bad_changeset() {
     store.close().await;
     let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
     assert_eq!(store.events(mission.id).await.unwrap().len(), 39);
+}
+
+/// A changeset that follows one the store refused is not written, nor is
+/// the one that follows it; changesets of other chains are, queued
+/// together with them or after.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn what_follows_a_refused_changeset_is_not_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("chains.db");
+    let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
+    let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
+    let event = |i: u64, mission_id: MissionId| Changeset {
+        events: vec![MissionEvent {
+            id: 0,
+            mission_id,
+            at: Timestamp(i as i64),
+            kind: "note".into(),
+            detail: format!("event {i}"),
+            actor: "test".into(),
+        }],
+        ..Changeset::default()
+    };
+    // Chain a: 1 is written, 2 breaks a foreign key, 3 and 4 follow it.
+    // Chain b runs beside it; the empty changeset of chain a writes nothing
+    // and passes its place on.
+    let a1 = store.submit(event(1, mission.id), None).await.unwrap();
+    let b1 = store.submit(event(10, mission.id), None).await.unwrap();
+    let a2 = store.submit(event(2, 999), Some(a1.id)).await.unwrap();
+    let empty = store.submit(Changeset::default(), Some(a2.id)).await.unwrap();
+    assert_eq!(empty.id, a2.id, "an empty changeset stands where its predecessor stands");
+    let a3 = store.submit(event(3, mission.id), Some(empty.id)).await.unwrap();
+    let b2 = store.submit(event(11, mission.id), Some(b1.id)).await.unwrap();
+    let a4 = store.submit(event(4, mission.id), Some(a3.id)).await.unwrap();
+    let (a1, a2, a3, a4) = (a1.durable().await, a2.durable().await, a3.durable().await, a4.durable().await);
+    assert!(a1.is_ok());
+    assert!(matches!(a2, Err(StoreError::Database(_))), "{a2:?}");
+    for abandoned in [a3, a4] {
+        let Err(StoreError::Abandoned { kind, cause }) = abandoned else { panic!("{abandoned:?}") };
+        assert_eq!(kind, FailureKind::Internal, "the kind of the first failure");
+        assert!(cause.contains("FOREIGN KEY"), "{cause}");
+    }
+    assert!(b1.durable().await.is_ok() && b2.durable().await.is_ok(), "another chain is unaffected");
+    assert!(empty.durable().await.is_ok());
+    // A changeset that follows nothing starts afresh.
+    store.commit(event(5, mission.id)).await.unwrap();
+    store.close().await;
+    let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
+    let mut written: Vec<i64> = store.events(mission.id).await.unwrap().iter().map(|e| e.at.0).collect();
+    written.sort_unstable();
+    assert_eq!(written, vec![1, 5, 10, 11]);
 }
