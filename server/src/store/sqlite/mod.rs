@@ -3,6 +3,7 @@
 //!
 //! [`rows`] reads records back and checks them; [`write`] writes changesets.
 
+mod checkpoint;
 mod group;
 mod rows;
 mod write;
@@ -17,6 +18,7 @@ use std::time::Duration;
 use async_trait::async_trait;
 use sqlx::Connection;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteSynchronous};
+use tokio_util::sync::CancellationToken;
 
 use super::lock::StoreLock;
 use super::{Changeset, CommitId, LoggedPatch, Store, StoreError, Submitted, TaskFilter};
@@ -47,6 +49,8 @@ pub struct SqliteStore {
     /// The group committer's queue (see [`group`]); taken at close.
     commits: Arc<std::sync::Mutex<Option<tokio::sync::mpsc::Sender<group::Pending>>>>,
     committer: Arc<std::sync::Mutex<Option<tokio::task::JoinHandle<()>>>>,
+    /// The checkpointer (see [`checkpoint`]) and how to stop it; taken at close.
+    checkpointer: Arc<std::sync::Mutex<Option<(CancellationToken, tokio::task::JoinHandle<()>)>>>,
     /// The name of the next changeset submitted.
     next_commit: Arc<AtomicU64>,
     /// Held until the store is closed or every clone of it is dropped.
@@ -77,15 +81,20 @@ impl SqliteStore {
                 Durability::Normal => SqliteSynchronous::Normal,
             })
             .foreign_keys(true)
+            // Checkpoints run beside the writes, not inside them (see `checkpoint`).
+            .pragma("wal_autocheckpoint", "0")
             .busy_timeout(Duration::from_secs(5));
         let pool = SqlitePoolOptions::new().max_connections(4).connect_with(options).await?;
         MIGRATOR.run(&pool).await?;
         let (commits, committer) = group::start(pool.clone(), metrics);
+        let checkpoints = CancellationToken::new();
+        let checkpointer = tokio::spawn(checkpoint::run(pool.clone(), checkpoints.clone()));
         Ok(Self {
             pool,
             path: path.to_owned(),
             commits: Arc::new(std::sync::Mutex::new(Some(commits))),
             committer: Arc::new(std::sync::Mutex::new(Some(committer))),
+            checkpointer: Arc::new(std::sync::Mutex::new(Some((checkpoints, checkpointer)))),
             next_commit: Arc::new(AtomicU64::new(1)),
             lock: Arc::new(std::sync::Mutex::new(Some(lock))),
         })
@@ -99,6 +108,11 @@ impl SqliteStore {
         let committer = self.committer.lock().unwrap_or_else(|e| e.into_inner()).take();
         if let Some(committer) = committer {
             let _ = committer.await;
+        }
+        let checkpointer = self.checkpointer.lock().unwrap_or_else(|e| e.into_inner()).take();
+        if let Some((stop, checkpointer)) = checkpointer {
+            stop.cancel();
+            let _ = checkpointer.await;
         }
         self.pool.close().await;
         self.lock.lock().unwrap_or_else(|e| e.into_inner()).take();

@@ -15,7 +15,7 @@ use exploration::segment::{CriticalPoint, Segment, Segmentation};
 
 const HASH: &str = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
 
-fn spec() -> MissionSpec {
+pub(super) fn spec() -> MissionSpec {
     MissionSpec {
         name: "lab".into(),
         frame: GridFrame::new(0.1, Point2::new(-1.0, -2.0), 40, 30),
