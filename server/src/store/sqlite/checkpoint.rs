@@ -19,8 +19,28 @@ const PERIOD: Duration = Duration::from_millis(200);
 /// Log pages past which the checkpoint also truncates the file (about 64 MB).
 const TRUNCATE_PAGES: i64 = 16_384;
 
-/// Checkpoints `pool`'s database every [`PERIOD`] until `stop`.
-pub(super) async fn run(pool: SqlitePool, stop: CancellationToken) {
+/// The checkpointing task of a store.
+#[derive(Debug)]
+pub(super) struct Checkpointer {
+    stop: CancellationToken,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl Checkpointer {
+    /// Checkpoints `pool`'s database every [`PERIOD`] until stopped.
+    pub(super) fn start(pool: SqlitePool) -> Self {
+        let stop = CancellationToken::new();
+        Self { task: tokio::spawn(run(pool, stop.clone())), stop }
+    }
+
+    /// Stops, after the checkpoint under way if any.
+    pub(super) async fn stop(self) {
+        self.stop.cancel();
+        let _ = self.task.await;
+    }
+}
+
+async fn run(pool: SqlitePool, stop: CancellationToken) {
     let mut tick = tokio::time::interval(PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {

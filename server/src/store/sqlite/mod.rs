@@ -18,7 +18,6 @@ use std::time::Duration;
 use async_trait::async_trait;
 use sqlx::Connection;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteSynchronous};
-use tokio_util::sync::CancellationToken;
 
 use super::lock::StoreLock;
 use super::{Changeset, CommitId, LoggedPatch, Store, StoreError, Submitted, TaskFilter};
@@ -50,7 +49,7 @@ pub struct SqliteStore {
     commits: Arc<std::sync::Mutex<Option<tokio::sync::mpsc::Sender<group::Pending>>>>,
     committer: Arc<std::sync::Mutex<Option<tokio::task::JoinHandle<()>>>>,
     /// The checkpointer (see [`checkpoint`]) and how to stop it; taken at close.
-    checkpointer: Arc<std::sync::Mutex<Option<(CancellationToken, tokio::task::JoinHandle<()>)>>>,
+    checkpointer: Arc<std::sync::Mutex<Option<checkpoint::Checkpointer>>>,
     /// The name of the next changeset submitted.
     next_commit: Arc<AtomicU64>,
     /// Held until the store is closed or every clone of it is dropped.
@@ -87,14 +86,13 @@ impl SqliteStore {
         let pool = SqlitePoolOptions::new().max_connections(4).connect_with(options).await?;
         MIGRATOR.run(&pool).await?;
         let (commits, committer) = group::start(pool.clone(), metrics);
-        let checkpoints = CancellationToken::new();
-        let checkpointer = tokio::spawn(checkpoint::run(pool.clone(), checkpoints.clone()));
+        let checkpointer = checkpoint::Checkpointer::start(pool.clone());
         Ok(Self {
             pool,
             path: path.to_owned(),
             commits: Arc::new(std::sync::Mutex::new(Some(commits))),
             committer: Arc::new(std::sync::Mutex::new(Some(committer))),
-            checkpointer: Arc::new(std::sync::Mutex::new(Some((checkpoints, checkpointer)))),
+            checkpointer: Arc::new(std::sync::Mutex::new(Some(checkpointer))),
             next_commit: Arc::new(AtomicU64::new(1)),
             lock: Arc::new(std::sync::Mutex::new(Some(lock))),
         })
@@ -110,9 +108,8 @@ impl SqliteStore {
             let _ = committer.await;
         }
         let checkpointer = self.checkpointer.lock().unwrap_or_else(|e| e.into_inner()).take();
-        if let Some((stop, checkpointer)) = checkpointer {
-            stop.cancel();
-            let _ = checkpointer.await;
+        if let Some(checkpointer) = checkpointer {
+            checkpointer.stop().await;
         }
         self.pool.close().await;
         self.lock.lock().unwrap_or_else(|e| e.into_inner()).take();
