@@ -307,7 +307,8 @@ impl Store for SqliteStore {
 
     async fn patches(&self, mission: &MissionRecord) -> Result<Vec<LoggedPatch>, StoreError> {
         self.all(
-            "SELECT id, robot_id, seq, x, y, width, height, cells FROM map_patches WHERE mission_id = ?1 ORDER BY id",
+            "SELECT id, robot_id, seq, x, y, width, height, cells, cells_format FROM map_patches WHERE mission_id = ?1 \
+             ORDER BY id",
             mission.id,
             |row| rows::patch_from_row(row, &mission.spec.frame),
         )

@@ -312,11 +312,9 @@ pub(super) fn patch_from_row(row: &SqliteRow, frame: &GridFrame) -> Result<Logge
     if !frame.contains_rect(&rect) {
         return Err(at.bad(format!("the patch {rect:?} leaves the {}×{} mission grid", frame.width, frame.height)));
     }
-    let cells: Vec<u8> = at.get(row, "cells")?;
-    if cells.len() as u64 != rect.area() * 4 {
-        return Err(at.bad(format!("cells holds {} bytes, not 4 per cell of {} cells", cells.len(), rect.area())));
-    }
-    let patch = Patch::from_stored(rect, decode_cells(&cells)).map_err(|e| at.bad(e))?;
+    let stored: Vec<u8> = at.get(row, "cells")?;
+    let format: i64 = at.get(row, "cells_format")?;
+    let patch = Patch::from_stored(rect, decode_cells(&at, stored, format, rect.area())?).map_err(|e| at.bad(e))?;
     Ok(LoggedPatch { robot_id: at.id_column(row, "robot_id")?, seq: at.count(row, "seq")?, patch })
 }
 
@@ -470,13 +468,35 @@ pub(super) fn segmentation_from_row(row: &SqliteRow, frame: GridFrame) -> Result
     })
 }
 
-/// Little-endian f32 per cell, NaN for unknown cells.
+/// `map_patches.cells_format`: little-endian f32 log-odds per cell, NaN for unknown.
+const CELLS_RAW: i64 = 0;
+/// `map_patches.cells_format`: [`CELLS_RAW`]'s bytes as one LZ4 block.
+pub(super) const CELLS_LZ4: i64 = 1;
+
+/// A patch's cells as written now ([`CELLS_LZ4`]).
 pub(super) fn encode_cells(patch: &Patch) -> Vec<u8> {
-    patch.log_odds().iter().flat_map(|v| v.to_le_bytes()).collect()
+    let raw: Vec<u8> = patch.log_odds().iter().flat_map(|v| v.to_le_bytes()).collect();
+    lz4_flex::block::compress(&raw)
 }
 
-fn decode_cells(bytes: &[u8]) -> Vec<f32> {
-    bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+/// The log-odds of a patch's `count` cells from `stored` bytes in `format`.
+fn decode_cells(at: &At, stored: Vec<u8>, format: i64, count: u64) -> Result<Vec<f32>, StoreError> {
+    let expected = usize::try_from(count * 4).map_err(|_| at.bad(format!("{count} cells do not fit in memory")))?;
+    let raw = match format {
+        CELLS_RAW => stored,
+        CELLS_LZ4 => {
+            let mut raw = vec![0; expected];
+            let written =
+                lz4_flex::block::decompress_into(&stored, &mut raw).map_err(|e| at.bad(format!("cells: {e}")))?;
+            raw.truncate(written);
+            raw
+        }
+        other => return Err(at.bad(format!("cells_format {other} is none of {CELLS_RAW} (raw) or {CELLS_LZ4} (LZ4)"))),
+    };
+    if raw.len() != expected {
+        return Err(at.bad(format!("cells holds {} bytes, not 4 per cell of {count} cells", raw.len())));
+    }
+    Ok(raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
 }
 
 /// Every robot's token hash: 64 lower-case hex digits.

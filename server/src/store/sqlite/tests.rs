@@ -304,7 +304,10 @@ async fn corrupt_rows_are_refused_naming_table_row_and_column() {
         ("UPDATE robots SET last_map_seq = -4", "robots row 1: last_map_seq"),
         ("UPDATE map_patches SET width = 4000000000", "map_patches row 1"),
         ("UPDATE map_patches SET cells = x'00'", "map_patches row 1: cells"),
-        ("UPDATE map_patches SET cells = x'0000807f0000807f'", "map_patches row 1"),
+        ("UPDATE map_patches SET cells = x'ffffffff'", "map_patches row 1: cells"),
+        ("UPDATE map_patches SET cells_format = 7", "map_patches row 1: cells_format 7"),
+        ("UPDATE map_patches SET cells_format = 0, cells = x'00'", "map_patches row 1: cells holds 1 bytes"),
+        ("UPDATE map_patches SET cells_format = 0, cells = x'0000807f0000807f'", "map_patches row 1"),
     ];
     for (edit, expected) in cases {
         let dir = tempfile::tempdir().unwrap();

@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 
 use sqlx::SqliteConnection;
 
-use super::rows::{critical_points_json, encode_cells, leftovers_json, segments_json};
+use super::rows::{CELLS_LZ4, critical_points_json, encode_cells, leftovers_json, segments_json};
 use crate::domain::{MissionId, RobotId, RobotRecord, TaskId, TaskState, Timestamp, Transition};
 use crate::store::{Changeset, LoggedPatch, MissionCounters, StoreError};
 
@@ -49,7 +49,7 @@ const ROWS_PER_STATEMENT: usize = 500;
 /// Appends map patches to the log, in order, in one statement.
 async fn write_patches(tx: &mut SqliteConnection, patches: &[(&LoggedPatch, Timestamp)]) -> Result<(), StoreError> {
     let mut insert = sqlx::QueryBuilder::<sqlx::Sqlite>::new(
-        "INSERT INTO map_patches (mission_id, robot_id, seq, x, y, width, height, cells, received_at) ",
+        "INSERT INTO map_patches (mission_id, robot_id, seq, x, y, width, height, cells, cells_format, received_at) ",
     );
     insert.push_values(patches, |mut row, (logged, now)| {
         let rect = logged.patch.rect();
@@ -63,6 +63,7 @@ async fn write_patches(tx: &mut SqliteConnection, patches: &[(&LoggedPatch, Time
             .push_bind(i64::from(rect.width))
             .push_bind(i64::from(rect.height))
             .push_bind(encode_cells(&logged.patch))
+            .push_bind(CELLS_LZ4)
             .push_bind(now.millis());
     });
     insert.build().execute(&mut *tx).await?;
