@@ -88,12 +88,13 @@ impl Burgard {
             .collect()
     }
 
-    /// Lines 3–7 of Algorithm 1 on precomputed values.
+    /// Lines 3–7 of Algorithm 1, on values known in advance or learnt as
+    /// the choice needs them (see [`CostValues`]).
     pub(super) fn assign(
         &self,
         input: &PlanningInput<'_>,
         frontier: &[Cell],
-        values: &[Vec<Option<f64>>],
+        values: &mut impl CostValues,
     ) -> Vec<Option<Target>> {
         let grid = input.grid;
         let resolution = grid.frame().resolution;
@@ -112,13 +113,10 @@ impl Burgard {
         // Line 4: while a robot is left without a target.
         loop {
             let mut best: Option<(f64, usize, usize)> = None;
-            for (i, row) in values.iter().enumerate() {
-                if targets[i].is_some() {
-                    continue;
-                }
+            for i in (0..input.robots.len()).filter(|&i| targets[i].is_none()) {
                 let current = current_target(&input.robots[i]);
-                for (t, v) in row.iter().enumerate() {
-                    let Some(v) = v else { continue };
+                for t in 0..frontier.len() {
+                    let Some(v) = values.value(i, t) else { continue };
                     let keep = if Some(frontier[t]) == current { self.switch_margin } else { 0.0 };
                     let score = utility[t] - self.beta * v + keep;
                     // Strictly greater: ties go to the lower robot, then the lower cell.
@@ -127,13 +125,26 @@ impl Burgard {
                     }
                 }
             }
+            // A value not known yet could still win (or tie): learn more first.
+            let best_utility = utility.iter().copied().fold(f64::NEG_INFINITY, f64::max) + self.switch_margin.max(0.0);
+            let undecided: Vec<usize> = (0..input.robots.len())
+                .filter(|&i| targets[i].is_none())
+                .filter(|&i| {
+                    let unknown = values.unknown_at_least(i);
+                    unknown.is_finite() && best.is_none_or(|(b, _, _)| best_utility - self.beta * unknown >= b)
+                })
+                .collect();
+            if !undecided.is_empty() {
+                values.widen(&undecided);
+                continue;
+            }
             // Robots that cannot reach any frontier cell stay without a target.
             let Some((score, i, t)) = best else { break };
             let chosen = frontier[t];
             targets[i] = Some(Target {
                 cell: chosen,
                 utility: score,
-                path_cost: values[i][t].unwrap_or(0.0),
+                path_cost: values.value(i, t).unwrap_or(0.0),
                 gain_region: None,
             });
             // Line 6, Eq. 1: discount what the chosen target's sensor would cover.
@@ -157,8 +168,116 @@ impl Policy for Burgard {
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
-        let values = self.cost_values(input, costs, &frontier);
-        Plan::of(self.assign(input, &frontier, &values))
+        let mut values = GrowingValues::new(self, input, costs, &frontier);
+        Plan::of(self.assign(input, &frontier, &mut values))
+    }
+}
+
+/// V_t^i of Algorithm 1 (line 2), as far as it is known yet.
+pub(super) trait CostValues {
+    /// Robot `i`'s value of frontier cell `t`, when known and finite.
+    fn value(&self, i: usize, t: usize) -> Option<f64>;
+    /// Every value of robot `i` not known yet is at least this; infinite
+    /// when all are known.
+    fn unknown_at_least(&self, i: usize) -> f64;
+    /// Learns more of the values of `robots`.
+    fn widen(&mut self, robots: &[usize]);
+}
+
+/// Values all computed in advance ([`Burgard::cost_values`]).
+pub(super) struct Known<'a>(pub(super) &'a [Vec<Option<f64>>]);
+
+impl CostValues for Known<'_> {
+    fn value(&self, i: usize, t: usize) -> Option<f64> {
+        self.0[i][t]
+    }
+
+    fn unknown_at_least(&self, _: usize) -> f64 {
+        f64::INFINITY
+    }
+
+    fn widen(&mut self, _: &[usize]) {}
+}
+
+/// Values from searches that stop at a cost limit, doubled for the robots
+/// whose unknown values could still matter ([`crate::reach`]): a robot's
+/// search ends a little past the cost at which utility can no longer pay
+/// for the way, instead of covering the whole known map. The choices are
+/// those of the full values (tested below).
+struct GrowingValues<'a> {
+    input: &'a PlanningInput<'a>,
+    frontier: &'a [Cell],
+    /// Each robot's traversal (robots of one footprint share one).
+    traversals: Vec<std::sync::Arc<crate::cost::TraversalMap>>,
+    reaches: Vec<crate::reach::Reach>,
+}
+
+impl<'a> GrowingValues<'a> {
+    fn new(burgard: &Burgard, input: &'a PlanningInput<'a>, costs: &mut CostCache<'_>, frontier: &'a [Cell]) -> Self {
+        let traversals: Vec<_> = input
+            .robots
+            .iter()
+            .map(|r| {
+                costs.traversal(TraversalKind::burgard(
+                    burgard.occ_max,
+                    burgard.smoothing_sigma_m,
+                    r.capabilities.footprint_radius_m,
+                ))
+            })
+            .collect();
+        // A utility is at most 1: two units of utility's worth of travel.
+        let first = if burgard.beta > 0.0 { 2.0 / burgard.beta } else { f64::INFINITY };
+        let mut values = Self { input, frontier, traversals, reaches: Vec::new() };
+        let everyone: Vec<usize> = (0..input.robots.len()).collect();
+        values.reaches = values.search(&everyone, &vec![first; everyone.len()]);
+        values
+    }
+
+    /// Searches from `robots` up to `limits`, robots of one traversal together.
+    fn search(&self, robots: &[usize], limits: &[f64]) -> Vec<crate::reach::Reach> {
+        let mut found: Vec<Option<crate::reach::Reach>> = vec![None; robots.len()];
+        let mut done = vec![false; robots.len()];
+        for k in 0..robots.len() {
+            if done[k] {
+                continue;
+            }
+            let traversal = &self.traversals[robots[k]];
+            let group: Vec<usize> = (k..robots.len())
+                .filter(|&j| !done[j] && std::sync::Arc::ptr_eq(&self.traversals[robots[j]], traversal))
+                .collect();
+            let sources: Vec<Cell> = group.iter().map(|&j| self.input.robots[robots[j]].cell).collect();
+            let group_limits: Vec<f64> = group.iter().map(|&j| limits[j]).collect();
+            let reached = crate::reach::reach(traversal, &sources, self.frontier, &group_limits, self.input.threads);
+            for (j, r) in group.into_iter().zip(reached) {
+                found[j] = Some(r);
+                done[j] = true;
+            }
+        }
+        found.into_iter().flatten().collect()
+    }
+}
+
+impl CostValues for GrowingValues<'_> {
+    fn value(&self, i: usize, t: usize) -> Option<f64> {
+        let robot = &self.input.robots[i];
+        if robot.may_target(self.frontier[t]) { self.reaches[i].cost(t) } else { None }
+    }
+
+    fn unknown_at_least(&self, i: usize) -> f64 {
+        self.reaches[i].unknown_at_least()
+    }
+
+    fn widen(&mut self, robots: &[usize]) {
+        let limits: Vec<f64> = robots
+            .iter()
+            .map(|&i| {
+                let limit = self.reaches[i].limit() * 2.0;
+                if limit > 1e30 { f64::INFINITY } else { limit }
+            })
+            .collect();
+        for (i, reach) in robots.iter().zip(self.search(robots, &limits)) {
+            self.reaches[*i] = reach;
+        }
     }
 }
 
@@ -271,5 +390,60 @@ mod tests {
         ]);
         // In the open, (3,2) is 2 m from (1,2): U = 1 − (1 − 2/3) = 2/3.
         assert!((open - 2.0 / 3.0).abs() < 1e-9, "in the open: discounted, got {open}");
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 400, ..Default::default() })]
+
+        /// The searches that stop at a limit and widen on demand choose what
+        /// the full cost maps choose: the same targets, utilities and costs,
+        /// ties included, whatever β, the hysteresis, the costs per cell or
+        /// the robots' current targets.
+        #[test]
+        fn growing_searches_choose_what_full_cost_maps_choose(
+            width in 3u32..22,
+            height in 3u32..16,
+            cells in proptest::collection::vec(0u8..100, 8..96),
+            robots in proptest::collection::vec((0u32..400, proptest::option::of(0u32..400)), 1..6),
+            beta in proptest::prop_oneof![proptest::strategy::Just(0.0), 0.01f64..0.2, 0.2f64..6.0],
+            switch_margin in proptest::prop_oneof![proptest::strategy::Just(0.0), 0.0f64..1.0],
+            uniform in proptest::prelude::any::<bool>(),
+            threads in 1usize..3,
+        ) {
+            use crate::grid::{GridFrame, OccupancyGrid};
+            use crate::math::Point2;
+            use crate::policy::{CurrentTask, testing::with_input};
+            let frame = GridFrame::new(0.5, Point2::origin(), width, height);
+            let mut grid = OccupancyGrid::unknown(frame);
+            let all: Vec<Cell> = (0..height as i32).flat_map(|y| (0..width as i32).map(move |x| Cell::new(x, y))).collect();
+            for (k, &cell) in all.iter().enumerate() {
+                // Free (at one P(occ), where ties abound, or various), walls, unknown.
+                match cells[k % cells.len()] {
+                    v @ 0..60 => grid.set(cell, if uniform { 10 } else { v / 2 }),
+                    60..75 => grid.set(cell, 95),
+                    _ => {}
+                }
+            }
+            let free: Vec<Cell> = all.iter().copied().filter(|&c| grid.class_or_wall(c) == CellClass::Free).collect();
+            proptest::prop_assume!(!free.is_empty());
+            let views: Vec<_> = robots
+                .iter()
+                .enumerate()
+                .map(|(i, &(at, target))| {
+                    let mut view = crate::policy::testing::robot(i as u64, free[at as usize % free.len()], 1.5);
+                    view.current = target.map(|t| CurrentTask { target: all[t as usize % all.len()], gain_region: None });
+                    view
+                })
+                .collect();
+            let burgard = Burgard { beta, occ_max: 0.6, smoothing_sigma_m: 0.0, switch_margin };
+            let (growing, full) = with_input(&grid, &views, &vec![Vec::new(); views.len()], |input| {
+                let input = PlanningInput { threads, ..*input };
+                let growing = burgard.plan(&input, &mut CostCache::new(&grid));
+                let frontier = input.frontier_cells();
+                let values = burgard.cost_values(&input, &mut CostCache::new(&grid), &frontier);
+                (growing.targets, burgard.assign(&input, &frontier, &mut Known(&values)))
+            });
+            proptest::prop_assert_eq!(growing, full);
+        }
     }
 }
