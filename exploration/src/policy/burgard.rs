@@ -15,7 +15,7 @@
 //! grid resolution (at the paper's 15 cm cells, V in cells is V/0.15).
 
 use super::registry::{BETA, MIN_FRONTIER_SIZE, OCC_MAX, PolicyDescriptor, SMOOTHING, SWITCH_UTILITY};
-use super::{Plan, PlanningInput, Policy, Target, current_target, robot_cost_maps};
+use super::{GrowingSearches, Plan, PlanningInput, Policy, Target, current_target, robot_cost_maps};
 use crate::cost::{CostCache, TraversalKind};
 use crate::grid::{Cell, CellClass, OccupancyGrid};
 use crate::visibility::line_of_sight;
@@ -207,77 +207,36 @@ impl CostValues for Known<'_> {
 struct GrowingValues<'a> {
     input: &'a PlanningInput<'a>,
     frontier: &'a [Cell],
-    /// Each robot's traversal (robots of one footprint share one).
-    traversals: Vec<std::sync::Arc<crate::cost::TraversalMap>>,
-    reaches: Vec<crate::reach::Reach>,
+    searches: GrowingSearches,
 }
 
 impl<'a> GrowingValues<'a> {
     fn new(burgard: &Burgard, input: &'a PlanningInput<'a>, costs: &mut CostCache<'_>, frontier: &'a [Cell]) -> Self {
-        let traversals: Vec<_> = input
+        let kinds: Vec<TraversalKind> = input
             .robots
             .iter()
             .map(|r| {
-                costs.traversal(TraversalKind::burgard(
-                    burgard.occ_max,
-                    burgard.smoothing_sigma_m,
-                    r.capabilities.footprint_radius_m,
-                ))
+                TraversalKind::burgard(burgard.occ_max, burgard.smoothing_sigma_m, r.capabilities.footprint_radius_m)
             })
             .collect();
         // A utility is at most 1: two units of utility's worth of travel.
         let first = if burgard.beta > 0.0 { 2.0 / burgard.beta } else { f64::INFINITY };
-        let mut values = Self { input, frontier, traversals, reaches: Vec::new() };
-        let everyone: Vec<usize> = (0..input.robots.len()).collect();
-        values.reaches = values.search(&everyone, &vec![first; everyone.len()]);
-        values
-    }
-
-    /// Searches from `robots` up to `limits`, robots of one traversal together.
-    fn search(&self, robots: &[usize], limits: &[f64]) -> Vec<crate::reach::Reach> {
-        let mut found: Vec<Option<crate::reach::Reach>> = vec![None; robots.len()];
-        let mut done = vec![false; robots.len()];
-        for k in 0..robots.len() {
-            if done[k] {
-                continue;
-            }
-            let traversal = &self.traversals[robots[k]];
-            let group: Vec<usize> = (k..robots.len())
-                .filter(|&j| !done[j] && std::sync::Arc::ptr_eq(&self.traversals[robots[j]], traversal))
-                .collect();
-            let sources: Vec<Cell> = group.iter().map(|&j| self.input.robots[robots[j]].cell).collect();
-            let group_limits: Vec<f64> = group.iter().map(|&j| limits[j]).collect();
-            let reached = crate::reach::reach(traversal, &sources, self.frontier, &group_limits, self.input.threads);
-            for (j, r) in group.into_iter().zip(reached) {
-                found[j] = Some(r);
-                done[j] = true;
-            }
-        }
-        found.into_iter().flatten().collect()
+        Self { input, frontier, searches: GrowingSearches::new(input, costs, &kinds, frontier, first) }
     }
 }
 
 impl CostValues for GrowingValues<'_> {
     fn value(&self, i: usize, t: usize) -> Option<f64> {
         let robot = &self.input.robots[i];
-        if robot.may_target(self.frontier[t]) { self.reaches[i].cost(t) } else { None }
+        if robot.may_target(self.frontier[t]) { self.searches.reach(i).cost(t) } else { None }
     }
 
     fn unknown_at_least(&self, i: usize) -> f64 {
-        self.reaches[i].unknown_at_least()
+        self.searches.reach(i).unknown_at_least()
     }
 
     fn widen(&mut self, robots: &[usize]) {
-        let limits: Vec<f64> = robots
-            .iter()
-            .map(|&i| {
-                let limit = self.reaches[i].limit() * 2.0;
-                if limit > 1e30 { f64::INFINITY } else { limit }
-            })
-            .collect();
-        for (i, reach) in robots.iter().zip(self.search(robots, &limits)) {
-            self.reaches[*i] = reach;
-        }
+        self.searches.widen(robots);
     }
 }
 
@@ -410,31 +369,10 @@ mod tests {
             uniform in proptest::prelude::any::<bool>(),
             threads in 1usize..3,
         ) {
-            use crate::grid::{GridFrame, OccupancyGrid};
-            use crate::math::Point2;
-            use crate::policy::{CurrentTask, testing::with_input};
-            let frame = GridFrame::new(0.5, Point2::origin(), width, height);
-            let mut grid = OccupancyGrid::unknown(frame);
-            let all: Vec<Cell> = (0..height as i32).flat_map(|y| (0..width as i32).map(move |x| Cell::new(x, y))).collect();
-            for (k, &cell) in all.iter().enumerate() {
-                // Free (at one P(occ), where ties abound, or various), walls, unknown.
-                match cells[k % cells.len()] {
-                    v @ 0..60 => grid.set(cell, if uniform { 10 } else { v / 2 }),
-                    60..75 => grid.set(cell, 95),
-                    _ => {}
-                }
-            }
-            let free: Vec<Cell> = all.iter().copied().filter(|&c| grid.class_or_wall(c) == CellClass::Free).collect();
-            proptest::prop_assume!(!free.is_empty());
-            let views: Vec<_> = robots
-                .iter()
-                .enumerate()
-                .map(|(i, &(at, target))| {
-                    let mut view = crate::policy::testing::robot(i as u64, free[at as usize % free.len()], 1.5);
-                    view.current = target.map(|t| CurrentTask { target: all[t as usize % all.len()], gain_region: None });
-                    view
-                })
-                .collect();
+            use crate::policy::testing::{random_situation, with_input};
+            let situation = random_situation(width, height, &cells, &robots, uniform);
+            proptest::prop_assume!(situation.is_some());
+            let Some((grid, views)) = situation else { return Ok(()) };
             let burgard = Burgard { beta, occ_max: 0.6, smoothing_sigma_m: 0.0, switch_margin };
             let (growing, full) = with_input(&grid, &views, &vec![Vec::new(); views.len()], |input| {
                 let input = PlanningInput { threads, ..*input };
