@@ -53,11 +53,27 @@ class Coordinator:
             command += ["--operator-token", self.token]
         with self.log.open("ab") as log:
             self.process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
-        channel = grpc.insecure_channel(self.address)
+        self._wait_until_accepting(deadline=time.monotonic() + 30)
+        # A subchannel of its own: gRPC shares subchannels between channels of
+        # one address, and one the tests' clients left in reconnect backoff
+        # (after a kill) must not decide when this probe sees the server.
+        channel = grpc.insecure_channel(self.address, options=[("grpc.use_local_subchannel_pool", 1)])
         try:
             grpc.channel_ready_future(channel).result(timeout=30)
         finally:
             channel.close()
+
+    def _wait_until_accepting(self, deadline: float) -> None:
+        while True:
+            if self.process is not None and self.process.poll() is not None:
+                raise RuntimeError(f"the coordinator exited with {self.process.returncode}; see {self.log}")
+            try:
+                socket.create_connection(("127.0.0.1", self.port), timeout=1).close()
+                return
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.05)
 
     def kill(self) -> None:
         """SIGKILL: no goodbye to anyone."""
