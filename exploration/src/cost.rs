@@ -66,11 +66,6 @@ fn pad(frame: &GridFrame, values: &[f32]) -> Vec<f32> {
 }
 
 impl TraversalMap {
-    /// Cells in the padded grid (for search buffers).
-    pub(crate) fn padded_len(&self) -> usize {
-        self.padded.len()
-    }
-
     /// Known free cells cost 1 per metre; everything else is impassable, and
     /// so is every cell within `footprint_radius_m` of an occupied cell (the
     /// configuration space of a circular robot, Bautin et al. 2011 §IV-B).
@@ -368,108 +363,13 @@ fn settle_from(traversal: &TraversalMap, sources: &[Cell], corners: Corners, lab
         diagonal: diagonal * min_step,
     };
     let bounds = (min_step * orthogonal, max_step * diagonal);
-    let mut search = Search { cost: &mut cost, labels, touched: None, limit: f32::INFINITY };
     match (uniform, cut) {
-        (true, true) => settle::<_, true>(&constant, &mut search, &starts, bounds),
-        (true, false) => settle::<_, false>(&constant, &mut search, &starts, bounds),
-        (false, true) => settle::<_, true>(&weighted, &mut search, &starts, bounds),
-        (false, false) => settle::<_, false>(&weighted, &mut search, &starts, bounds),
-    };
+        (true, true) => settle::<_, true>(&constant, &mut cost, labels, &starts, bounds),
+        (true, false) => settle::<_, false>(&constant, &mut cost, labels, &starts, bounds),
+        (false, true) => settle::<_, true>(&weighted, &mut cost, labels, &starts, bounds),
+        (false, false) => settle::<_, false>(&weighted, &mut cost, labels, &starts, bounds),
+    }
     CostMap { frame, cost }
-}
-
-/// Searches from `source` over `traversal` (corners kept) until every cell
-/// cheaper than `limit` is settled, in `cost` (padded, infinite where not
-/// reached), recording in `touched` every cell it wrote.
-pub(crate) fn settle_within(
-    traversal: &TraversalMap,
-    source: Cell,
-    limit: f32,
-    cost: &mut [f32],
-    touched: &mut Vec<u32>,
-) -> Settled {
-    let frame = traversal.frame;
-    if !frame.contains(source) {
-        return Settled::All;
-    }
-    let start = padded_index(&frame, source);
-    cost[start] = 0.0;
-    touched.push(start as u32);
-    let (min_step, max_step) = traversal.step_range;
-    let orthogonal = frame.resolution as f32;
-    let diagonal = (frame.resolution * std::f64::consts::SQRT_2) as f32;
-    let stride = frame.width as usize + 2;
-    let bounds = (min_step * orthogonal, max_step * diagonal);
-    let mut search = Search { cost, labels: &mut [], touched: Some(touched), limit };
-    if min_step == max_step {
-        let constant = Uniform {
-            bits: &traversal.passable_bits,
-            stride,
-            orthogonal: orthogonal * min_step,
-            diagonal: diagonal * min_step,
-        };
-        settle::<_, false>(&constant, &mut search, &[start], bounds)
-    } else {
-        let weighted =
-            Weighted { costs: &traversal.padded, bits: &traversal.passable_bits, stride, orthogonal, diagonal };
-        settle::<_, false>(&weighted, &mut search, &[start], bounds)
-    }
-}
-
-/// The padded index of `cell`, for readers of [`settle_within`]'s costs.
-pub(crate) fn padded(frame: &GridFrame, cell: Cell) -> usize {
-    padded_index(frame, cell)
-}
-
-/// One search's labels and where it stops.
-struct Search<'a> {
-    /// Padded costs, infinite where not reached.
-    cost: &'a mut [f32],
-    /// Per padded cell, the source it is cheapest from; empty when not kept.
-    labels: &'a mut [u32],
-    /// Every cell the search wrote, when kept (to reset them afterwards).
-    touched: Option<&'a mut Vec<u32>>,
-    /// Cells from this cost on need not be settled.
-    limit: f32,
-}
-
-/// Which labels a search settled: final, equal to a full search's.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) enum Settled {
-    /// Every label.
-    All,
-    /// The labels of the buckets before `bucket` (a label `c` is final when
-    /// `c * per_bucket` truncates to less than `bucket`).
-    Buckets {
-        /// The first bucket not drained.
-        bucket: usize,
-        /// Buckets per unit of cost.
-        per_bucket: f32,
-    },
-    /// The labels below this cost.
-    Below(f32),
-}
-
-impl Settled {
-    /// Whether a label of cost `c` is final.
-    pub(crate) fn is_final(self, c: f32) -> bool {
-        match self {
-            Self::All => true,
-            Self::Buckets { bucket, per_bucket } => ((c * per_bucket) as usize) < bucket,
-            Self::Below(limit) => c < limit,
-        }
-    }
-
-    /// A cost every label that is not final reaches or exceeds.
-    pub(crate) fn lower_bound(self) -> f64 {
-        match self {
-            Self::All => f64::INFINITY,
-            // Rounding in `c * per_bucket` may put a label a hair below
-            // its bucket's edge: the bound is kept that much lower.
-            Self::Buckets { bucket, per_bucket } => bucket as f64 / f64::from(per_bucket) * (1.0 - 1e-5),
-            Self::Below(limit) => f64::from(limit),
-        }
-    }
 }
 
 /// Whether bit `i` is set.
@@ -548,10 +448,11 @@ impl Neighbourhood for Uniform<'_> {
 /// binary heap otherwise.
 fn settle<N: Neighbourhood, const CUT: bool>(
     n: &N,
-    search: &mut Search<'_>,
+    cost: &mut [f32],
+    labels: &mut [u32],
     starts: &[usize],
     steps: (f32, f32),
-) -> Settled {
+) {
     // Slightly narrower than the cheapest step, so rounding never puts a
     // relaxed cell into the bucket being drained.
     let width = steps.0 * (1.0 - 1e-5);
@@ -560,18 +461,21 @@ fn settle<N: Neighbourhood, const CUT: bool>(
     } else {
         usize::MAX
     };
-    if ring <= 4096 { buckets::<N, CUT>(n, search, starts, width, ring) } else { heap::<N, CUT>(n, search, starts) }
+    if ring <= 4096 {
+        buckets::<N, CUT>(n, cost, labels, starts, width, ring);
+    } else {
+        heap::<N, CUT>(n, cost, labels, starts);
+    }
 }
 
 fn buckets<N: Neighbourhood, const CUT: bool>(
     n: &N,
-    search: &mut Search<'_>,
+    cost: &mut [f32],
+    labels: &mut [u32],
     starts: &[usize],
     width: f32,
     ring: usize,
-) -> Settled {
-    let Search { cost, labels, touched, limit } = search;
-    let limit = *limit;
+) {
     let labelled = !labels.is_empty();
     // A power-of-two ring turns the bucket's slot into a mask.
     let ring = ring.next_power_of_two();
@@ -586,9 +490,6 @@ fn buckets<N: Neighbourhood, const CUT: bool>(
     let mut current = 0usize;
     let mut batch = Vec::new();
     while pending > 0 {
-        if current as f32 * width >= limit {
-            return Settled::Buckets { bucket: current, per_bucket };
-        }
         let slot = current & slot_mask;
         while !rings[slot].is_empty() {
             std::mem::swap(&mut batch, &mut rings[slot]);
@@ -602,11 +503,6 @@ fn buckets<N: Neighbourhood, const CUT: bool>(
                 }
                 n.neighbours::<CUT>(i, here, |j, c| {
                     if c < cost[j] {
-                        if let Some(touched) = touched.as_deref_mut()
-                            && cost[j] == f32::INFINITY
-                        {
-                            touched.push(j as u32);
-                        }
                         cost[j] = c;
                         if labelled {
                             labels[j] = labels[i];
@@ -620,12 +516,9 @@ fn buckets<N: Neighbourhood, const CUT: bool>(
         }
         current += 1;
     }
-    Settled::All
 }
 
-fn heap<N: Neighbourhood, const CUT: bool>(n: &N, search: &mut Search<'_>, starts: &[usize]) -> Settled {
-    let Search { cost, labels, touched, limit } = search;
-    let limit = *limit;
+fn heap<N: Neighbourhood, const CUT: bool>(n: &N, cost: &mut [f32], labels: &mut [u32], starts: &[usize]) {
     let labelled = !labels.is_empty();
     let mut heap = BinaryHeap::new();
     for &i in starts {
@@ -636,16 +529,8 @@ fn heap<N: Neighbourhood, const CUT: bool>(n: &N, search: &mut Search<'_>, start
         if here > cost[i] {
             continue;
         }
-        if here >= limit {
-            return Settled::Below(limit);
-        }
         n.neighbours::<CUT>(i, here, |j, c| {
             if c < cost[j] {
-                if let Some(touched) = touched.as_deref_mut()
-                    && cost[j] == f32::INFINITY
-                {
-                    touched.push(j as u32);
-                }
                 cost[j] = c;
                 if labelled {
                     labels[j] = labels[i];
@@ -654,7 +539,6 @@ fn heap<N: Neighbourhood, const CUT: bool>(n: &N, search: &mut Search<'_>, start
             }
         });
     }
-    Settled::All
 }
 
 /// Orders by cost, then by index: non-negative floats order like their bits.
@@ -937,11 +821,10 @@ mod tests {
                 orthogonal: 0.25,
                 diagonal: (0.25 * std::f64::consts::SQRT_2) as f32,
             };
-            let mut search = Search { cost: &mut slow, labels: &mut [], touched: None, limit: f32::INFINITY };
             if cut {
-                heap::<_, true>(&n, &mut search, &[start]);
+                heap::<_, true>(&n, &mut slow, &mut [], &[start]);
             } else {
-                heap::<_, false>(&n, &mut search, &[start]);
+                heap::<_, false>(&n, &mut slow, &mut [], &[start]);
             }
             for cell in frame.bounds().cells() {
                 let a = fast.cost(cell);

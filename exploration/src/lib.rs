@@ -29,7 +29,6 @@ pub mod fusion;
 pub mod grid;
 pub mod math;
 pub mod policy;
-pub mod reach;
 pub mod rng;
 pub mod segment;
 pub mod visibility;

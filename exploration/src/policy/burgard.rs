@@ -15,7 +15,7 @@
 //! grid resolution (at the paper's 15 cm cells, V in cells is V/0.15).
 
 use super::registry::{BETA, MIN_FRONTIER_SIZE, OCC_MAX, PolicyDescriptor, SMOOTHING, SWITCH_UTILITY};
-use super::{GrowingSearches, Plan, PlanningInput, Policy, Target, current_target, robot_cost_maps};
+use super::{Plan, PlanningInput, Policy, Target, current_target, robot_cost_maps};
 use crate::cost::{CostCache, TraversalKind};
 use crate::grid::{Cell, CellClass, OccupancyGrid};
 use crate::visibility::line_of_sight;
@@ -88,13 +88,12 @@ impl Burgard {
             .collect()
     }
 
-    /// Lines 3–7 of Algorithm 1, on values known in advance or learnt as
-    /// the choice needs them (see [`CostValues`]).
+    /// Lines 3–7 of Algorithm 1 on precomputed values.
     pub(super) fn assign(
         &self,
         input: &PlanningInput<'_>,
         frontier: &[Cell],
-        values: &mut impl CostValues,
+        values: &[Vec<Option<f64>>],
     ) -> Vec<Option<Target>> {
         let grid = input.grid;
         let resolution = grid.frame().resolution;
@@ -113,10 +112,13 @@ impl Burgard {
         // Line 4: while a robot is left without a target.
         loop {
             let mut best: Option<(f64, usize, usize)> = None;
-            for i in (0..input.robots.len()).filter(|&i| targets[i].is_none()) {
+            for (i, row) in values.iter().enumerate() {
+                if targets[i].is_some() {
+                    continue;
+                }
                 let current = current_target(&input.robots[i]);
-                for t in 0..frontier.len() {
-                    let Some(v) = values.value(i, t) else { continue };
+                for (t, v) in row.iter().enumerate() {
+                    let Some(v) = v else { continue };
                     let keep = if Some(frontier[t]) == current { self.switch_margin } else { 0.0 };
                     let score = utility[t] - self.beta * v + keep;
                     // Strictly greater: ties go to the lower robot, then the lower cell.
@@ -125,26 +127,13 @@ impl Burgard {
                     }
                 }
             }
-            // A value not known yet could still win (or tie): learn more first.
-            let best_utility = utility.iter().copied().fold(f64::NEG_INFINITY, f64::max) + self.switch_margin.max(0.0);
-            let undecided: Vec<usize> = (0..input.robots.len())
-                .filter(|&i| targets[i].is_none())
-                .filter(|&i| {
-                    let unknown = values.unknown_at_least(i);
-                    unknown.is_finite() && best.is_none_or(|(b, _, _)| best_utility - self.beta * unknown >= b)
-                })
-                .collect();
-            if !undecided.is_empty() {
-                values.widen(&undecided);
-                continue;
-            }
             // Robots that cannot reach any frontier cell stay without a target.
             let Some((score, i, t)) = best else { break };
             let chosen = frontier[t];
             targets[i] = Some(Target {
                 cell: chosen,
                 utility: score,
-                path_cost: values.value(i, t).unwrap_or(0.0),
+                path_cost: values[i][t].unwrap_or(0.0),
                 gain_region: None,
             });
             // Line 6, Eq. 1: discount what the chosen target's sensor would cover.
@@ -168,75 +157,8 @@ impl Policy for Burgard {
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
-        let mut values = GrowingValues::new(self, input, costs, &frontier);
-        Plan::of(self.assign(input, &frontier, &mut values))
-    }
-}
-
-/// V_t^i of Algorithm 1 (line 2), as far as it is known yet.
-pub(super) trait CostValues {
-    /// Robot `i`'s value of frontier cell `t`, when known and finite.
-    fn value(&self, i: usize, t: usize) -> Option<f64>;
-    /// Every value of robot `i` not known yet is at least this; infinite
-    /// when all are known.
-    fn unknown_at_least(&self, i: usize) -> f64;
-    /// Learns more of the values of `robots`.
-    fn widen(&mut self, robots: &[usize]);
-}
-
-/// Values all computed in advance ([`Burgard::cost_values`]).
-pub(super) struct Known<'a>(pub(super) &'a [Vec<Option<f64>>]);
-
-impl CostValues for Known<'_> {
-    fn value(&self, i: usize, t: usize) -> Option<f64> {
-        self.0[i][t]
-    }
-
-    fn unknown_at_least(&self, _: usize) -> f64 {
-        f64::INFINITY
-    }
-
-    fn widen(&mut self, _: &[usize]) {}
-}
-
-/// Values from searches that stop at a cost limit, doubled for the robots
-/// whose unknown values could still matter ([`crate::reach`]): a robot's
-/// search ends a little past the cost at which utility can no longer pay
-/// for the way, instead of covering the whole known map. The choices are
-/// those of the full values (tested below).
-struct GrowingValues<'a> {
-    input: &'a PlanningInput<'a>,
-    frontier: &'a [Cell],
-    searches: GrowingSearches,
-}
-
-impl<'a> GrowingValues<'a> {
-    fn new(burgard: &Burgard, input: &'a PlanningInput<'a>, costs: &mut CostCache<'_>, frontier: &'a [Cell]) -> Self {
-        let kinds: Vec<TraversalKind> = input
-            .robots
-            .iter()
-            .map(|r| {
-                TraversalKind::burgard(burgard.occ_max, burgard.smoothing_sigma_m, r.capabilities.footprint_radius_m)
-            })
-            .collect();
-        // A utility is at most 1: two units of utility's worth of travel.
-        let first = if burgard.beta > 0.0 { 2.0 / burgard.beta } else { f64::INFINITY };
-        Self { input, frontier, searches: GrowingSearches::new(input, costs, &kinds, frontier, first) }
-    }
-}
-
-impl CostValues for GrowingValues<'_> {
-    fn value(&self, i: usize, t: usize) -> Option<f64> {
-        let robot = &self.input.robots[i];
-        if robot.may_target(self.frontier[t]) { self.searches.reach(i).cost(t) } else { None }
-    }
-
-    fn unknown_at_least(&self, i: usize) -> f64 {
-        self.searches.reach(i).unknown_at_least()
-    }
-
-    fn widen(&mut self, robots: &[usize]) {
-        self.searches.widen(robots);
+        let values = self.cost_values(input, costs, &frontier);
+        Plan::of(self.assign(input, &frontier, &values))
     }
 }
 
@@ -349,39 +271,5 @@ mod tests {
         ]);
         // In the open, (3,2) is 2 m from (1,2): U = 1 − (1 − 2/3) = 2/3.
         assert!((open - 2.0 / 3.0).abs() < 1e-9, "in the open: discounted, got {open}");
-    }
-
-    proptest::proptest! {
-        #![proptest_config(proptest::prelude::ProptestConfig { cases: 400, ..Default::default() })]
-
-        /// The searches that stop at a limit and widen on demand choose what
-        /// the full cost maps choose: the same targets, utilities and costs,
-        /// ties included, whatever β, the hysteresis, the costs per cell or
-        /// the robots' current targets.
-        #[test]
-        fn growing_searches_choose_what_full_cost_maps_choose(
-            width in 3u32..22,
-            height in 3u32..16,
-            cells in proptest::collection::vec(0u8..100, 8..96),
-            robots in proptest::collection::vec((0u32..400, proptest::option::of(0u32..400)), 1..6),
-            beta in proptest::prop_oneof![proptest::strategy::Just(0.0), 0.01f64..0.2, 0.2f64..6.0],
-            switch_margin in proptest::prop_oneof![proptest::strategy::Just(0.0), 0.0f64..1.0],
-            uniform in proptest::prelude::any::<bool>(),
-            threads in 1usize..3,
-        ) {
-            use crate::policy::testing::{random_situation, with_input};
-            let situation = random_situation(width, height, &cells, &robots, uniform);
-            proptest::prop_assume!(situation.is_some());
-            let Some((grid, views)) = situation else { return Ok(()) };
-            let burgard = Burgard { beta, occ_max: 0.6, smoothing_sigma_m: 0.0, switch_margin };
-            let (growing, full) = with_input(&grid, &views, &vec![Vec::new(); views.len()], |input| {
-                let input = PlanningInput { threads, ..*input };
-                let growing = burgard.plan(&input, &mut CostCache::new(&grid));
-                let frontier = input.frontier_cells();
-                let values = burgard.cost_values(&input, &mut CostCache::new(&grid), &frontier);
-                (growing.targets, burgard.assign(&input, &frontier, &mut Known(&values)))
-            });
-            proptest::prop_assert_eq!(growing, full);
-        }
     }
 }

@@ -28,7 +28,7 @@
 use super::registry::{BETA, MIN_FRONTIER_SIZE, OCC_MAX, ParamSpec, PolicyDescriptor, SMOOTHING, SWITCH_UTILITY};
 use std::collections::HashMap;
 
-use super::burgard::{Known, covered};
+use super::burgard::covered;
 use super::{Burgard, Plan, PlanningInput, Policy, Target, current_target};
 use crate::cost::CostCache;
 use crate::grid::Cell;
@@ -279,7 +279,7 @@ impl Policy for BurgardJoint {
         }
         // Algorithm 1's assignment, as (robot, frontier index): a start for the
         // search and a candidate of its own.
-        let greedy = self.burgard.assign(input, &frontier, &mut Known(&values));
+        let greedy = self.burgard.assign(input, &frontier, &values);
         let index_of = |cell: Cell| frontier.iter().position(|&c| c == cell);
         let mut from_greedy: Vec<(usize, usize)> = Vec::new();
         for (i, _) in &ranked {
@@ -352,8 +352,7 @@ impl Policy for BurgardJoint {
             searched
         };
         // Fewer frontier cells than robots: the rest fall back on Algorithm 1.
-        let fallback =
-            if best.1.len() < active { Some(self.burgard.assign(input, &frontier, &mut Known(&values))) } else { None };
+        let fallback = if best.1.len() < active { Some(self.burgard.assign(input, &frontier, &values)) } else { None };
         for &(i, t) in &best.1 {
             let v = values[i][t].unwrap_or(0.0);
             targets[i] =

@@ -319,83 +319,6 @@ pub fn free_space_cost_maps(
     robot_cost_maps(input, costs, &kinds)
 }
 
-/// Each robot's costs to a few cells (usually the frontier), from searches
-/// that stop at a cost limit and are widened, robot by robot, while a
-/// policy's choice still depends on what lies beyond ([`crate::reach`]).
-#[derive(Debug)]
-pub struct GrowingSearches {
-    /// Each robot's traversal (robots of one kind share one) and cell.
-    traversals: Vec<std::sync::Arc<crate::cost::TraversalMap>>,
-    sources: Vec<Cell>,
-    targets: Vec<Cell>,
-    threads: usize,
-    reaches: Vec<crate::reach::Reach>,
-}
-
-impl GrowingSearches {
-    /// Searches from every robot of `input` over its traversal `kinds` up
-    /// to `first_limit`, reading the costs of `targets`.
-    pub fn new(
-        input: &PlanningInput<'_>,
-        costs: &mut CostCache<'_>,
-        kinds: &[crate::cost::TraversalKind],
-        targets: &[Cell],
-        first_limit: f64,
-    ) -> Self {
-        let mut searches = Self {
-            traversals: kinds.iter().map(|&kind| costs.traversal(kind)).collect(),
-            sources: input.robots.iter().map(|r| r.cell).collect(),
-            targets: targets.to_vec(),
-            threads: input.threads,
-            reaches: Vec::new(),
-        };
-        let everyone: Vec<usize> = (0..input.robots.len()).collect();
-        searches.reaches = searches.search(&everyone, &vec![first_limit; everyone.len()]);
-        searches
-    }
-
-    /// What robot `i`'s search found.
-    pub fn reach(&self, i: usize) -> &crate::reach::Reach {
-        &self.reaches[i]
-    }
-
-    /// Searches again from `robots`, each to twice its last limit.
-    pub fn widen(&mut self, robots: &[usize]) {
-        let limits: Vec<f64> = robots
-            .iter()
-            .map(|&i| {
-                // From a limit of zero too: a search always grows.
-                let limit = (self.reaches[i].limit() * 2.0).max(1.0);
-                if limit > 1e30 { f64::INFINITY } else { limit }
-            })
-            .collect();
-        for (&i, reach) in robots.iter().zip(self.search(robots, &limits)) {
-            self.reaches[i] = reach;
-        }
-    }
-
-    /// Searches from `robots` up to `limits`, the robots of one traversal together.
-    fn search(&self, robots: &[usize], limits: &[f64]) -> Vec<crate::reach::Reach> {
-        let mut found: Vec<Option<crate::reach::Reach>> = vec![None; robots.len()];
-        for k in 0..robots.len() {
-            if found[k].is_some() {
-                continue;
-            }
-            let traversal = &self.traversals[robots[k]];
-            let group: Vec<usize> = (k..robots.len())
-                .filter(|&j| found[j].is_none() && std::sync::Arc::ptr_eq(&self.traversals[robots[j]], traversal))
-                .collect();
-            let sources: Vec<Cell> = group.iter().map(|&j| self.sources[robots[j]]).collect();
-            let group_limits: Vec<f64> = group.iter().map(|&j| limits[j]).collect();
-            let reached = crate::reach::reach(traversal, &sources, &self.targets, &group_limits, self.threads);
-            for (j, reach) in group.into_iter().zip(reached) {
-                found[j] = Some(reach);
-            }
-        }
-        found.into_iter().flatten().collect()
-    }
-}
-
 /// A target chosen for one robot.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Target {
@@ -488,44 +411,6 @@ pub(crate) mod testing {
         ]);
         let robots = [robot(0, Cell::new(3, 3), 5.0), robot(1, Cell::new(2, 1), 5.0)];
         (grid, robots, Cell::new(1, 3), Cell::new(12, 3))
-    }
-
-    /// A grid of `width` × `height` cells of 0.5 m drawn from `cells` (free
-    /// at one P(occ) when `uniform`, where ties abound, or at various; walls;
-    /// unknown), and robots on free cells drawn from `robots` with their
-    /// current targets anywhere; `None` when no cell is free.
-    pub fn random_situation(
-        width: u32,
-        height: u32,
-        cells: &[u8],
-        robots: &[(u32, Option<u32>)],
-        uniform: bool,
-    ) -> Option<(OccupancyGrid, Vec<RobotView>)> {
-        let frame = crate::grid::GridFrame::new(0.5, crate::math::Point2::origin(), width, height);
-        let mut grid = OccupancyGrid::unknown(frame);
-        let all: Vec<Cell> = (0..height as i32).flat_map(|y| (0..width as i32).map(move |x| Cell::new(x, y))).collect();
-        for (k, &cell) in all.iter().enumerate() {
-            match cells[k % cells.len()] {
-                v @ 0..60 => grid.set(cell, if uniform { 10 } else { v / 2 }),
-                60..75 => grid.set(cell, 95),
-                _ => {}
-            }
-        }
-        let free: Vec<Cell> =
-            all.iter().copied().filter(|&c| grid.class_or_wall(c) == crate::grid::CellClass::Free).collect();
-        if free.is_empty() {
-            return None;
-        }
-        let views = robots
-            .iter()
-            .enumerate()
-            .map(|(i, &(at, target))| {
-                let mut view = robot(i as RobotId, free[at as usize % free.len()], 1.5);
-                view.current = target.map(|t| CurrentTask { target: all[t as usize % all.len()], gain_region: None });
-                view
-            })
-            .collect();
-        Some((grid, views))
     }
 
     /// Runs the named policy with its default parameters, as a mission that
