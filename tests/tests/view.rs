@@ -318,3 +318,40 @@ async fn a_person_opening_the_page_sees_the_fleet_explore() {
     fleet.abort();
     exec.stop().await;
 }
+
+/// Live views are bounded: past the limit a viewer is refused at once with
+/// 503 and a Retry-After, and a view that closes makes room for the next.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn live_views_beyond_the_limit_are_refused_until_one_closes() {
+    let dir = tempfile::tempdir().unwrap();
+    let exec = TestExecutive::start_with_http(coordinator::Config::new(dir.path().join("views.db"))).await;
+    let mut missions = exec.missions();
+    let mission = common::create_mission(&mut missions, 20, 10, "nearest").await;
+    let (http, path) = (exec.http.unwrap(), format!("/api/missions/{}/live", mission.id));
+    let mut open = Vec::new();
+    for _ in 0..64 {
+        let mut stream = Get::send(http, &path, None).await;
+        assert_eq!(stream.status, 200);
+        stream.next_event().await;
+        open.push(stream);
+    }
+    let refused = Get::send(http, &path, None).await;
+    assert_eq!(refused.status, 503);
+    assert!(refused.body().await.contains("64 live views are open"));
+    drop(open.pop());
+    // The closed view's stream ends when the executive next writes to it:
+    // change the mission until a view is admitted again.
+    let mut fleet = exec.fleet();
+    let robot = common::register(&mut fleet, mission.id, "nudge", 0.5, 0.5).await;
+    let mut admitted = false;
+    for seq in 1..=200 {
+        let x = (seq % 15) as u32;
+        fleet.update_map(common::update(robot.id, seq, 0.5, 0.5, vec![common::patch(x, 0, 5, 5, 0.1)])).await.unwrap();
+        if Get::send(http, &path, None).await.status == 200 {
+            admitted = true;
+            break;
+        }
+    }
+    assert!(admitted, "a closed view gives its place back");
+    exec.stop().await;
+}

@@ -490,6 +490,12 @@ impl Executive {
         Ok(Self::summary(&mission))
     }
 
+    /// A mission's latest `limit` events, newest first.
+    pub async fn latest_events(&self, mission_id: MissionId, limit: u32) -> Result<Vec<MissionEvent>, Error> {
+        self.mission_handle(mission_id)?;
+        Ok(self.store.latest_events(mission_id, limit).await?)
+    }
+
     /// A mission's events, oldest first.
     pub async fn events(&self, mission_id: MissionId) -> Result<Vec<MissionEvent>, Error> {
         self.mission_handle(mission_id)?;

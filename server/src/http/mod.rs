@@ -28,12 +28,15 @@ pub(crate) struct Shared {
     auth: Arc<Authenticator>,
     /// Cancelled when the executive stops: live streams end.
     stop: CancellationToken,
+    /// One permit per live stream open (see [`view::MAX_LIVE_STREAMS`]).
+    live_streams: Arc<tokio::sync::Semaphore>,
 }
 
 /// The HTTP routes over `executive`; the view's API checks tokens with
 /// `auth`, and its streams end when `stop` is cancelled.
 pub fn router(executive: Arc<Executive>, auth: Authenticator, stop: CancellationToken) -> Router {
-    let shared = Shared { executive, auth: Arc::new(auth), stop };
+    let live_streams = Arc::new(tokio::sync::Semaphore::new(view::MAX_LIVE_STREAMS));
+    let shared = Shared { executive, auth: Arc::new(auth), stop, live_streams };
     Router::new()
         .route("/metrics", get(metrics))
         .route("/", get(view::page))

@@ -49,6 +49,11 @@ const SEGMENTATION_GAP: Duration = Duration::from_secs(5);
 /// Tasks and events shown.
 const LATEST: usize = 12;
 
+/// Live streams open at once. Each reads the mission several times a
+/// second; more viewers are refused (503 with Retry-After) rather than
+/// slowing the executive for its robots.
+pub(super) const MAX_LIVE_STREAMS: usize = 64;
+
 pub(super) async fn page() -> impl IntoResponse {
     ([(header::CONTENT_TYPE, "text/html; charset=utf-8"), (header::CACHE_CONTROL, "no-store")], PAGE)
 }
@@ -77,13 +82,21 @@ pub(super) async fn missions(State(state): State<Shared>, _caller: Authenticated
 
 /// `GET /api/missions/{id}/live`: the mission as server-sent events.
 pub(super) async fn live(State(state): State<Shared>, Path(id): Path<u64>, _caller: Authenticated) -> Response {
+    let Ok(permit) = Arc::clone(&state.live_streams).try_acquire_owned() else {
+        let message = format!("{MAX_LIVE_STREAMS} live views are open, the most this executive serves; retry later\n");
+        return (StatusCode::SERVICE_UNAVAILABLE, [(header::RETRY_AFTER, "5")], message).into_response();
+    };
     let mut cursor = Cursor::default();
     let first = match Frame::read(&state.executive, id, &mut cursor).await {
         Ok(frame) => frame,
         Err(e) => return error_response(e),
     };
     let (sender, receiver) = tokio::sync::mpsc::channel::<Bytes>(4);
-    tokio::spawn(follow(state.executive.clone(), state.stop.clone(), id, (first, cursor), sender));
+    let (executive, stop) = (state.executive.clone(), state.stop.clone());
+    tokio::spawn(async move {
+        follow(executive, stop, id, (first, cursor), sender).await;
+        drop(permit);
+    });
     let body = Body::from_stream(futures::StreamExt::map(tokio_stream::wrappers::ReceiverStream::new(receiver), |b| {
         Ok::<_, std::convert::Infallible>(b)
     }));
@@ -179,8 +192,8 @@ impl Frame {
             cursor.history_at = Some(now);
             let latest = executive.tasks(TaskFilter::mission(id, LATEST as u32)).await?;
             tasks = Some(latest.iter().map(TaskJson::from).collect());
-            let all = executive.events(id).await?;
-            events = Some(all.iter().rev().take(LATEST).map(EventJson::from).collect());
+            let latest = executive.latest_events(id, LATEST as u32).await?;
+            events = Some(latest.iter().map(EventJson::from).collect());
         }
         let mut segmentation = None;
         if due(cursor.segmentation_at, now, SEGMENTATION_GAP) {

@@ -304,6 +304,9 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// A mission's events, oldest first.
     async fn events(&self, mission_id: MissionId) -> Result<Vec<MissionEvent>, StoreError>;
 
+    /// A mission's latest `limit` events, newest first.
+    async fn latest_events(&self, mission_id: MissionId, limit: u32) -> Result<Vec<MissionEvent>, StoreError>;
+
     /// A mission's latest segmentation, if one was computed.
     async fn segmentation(&self, mission_id: MissionId) -> Result<Option<StoredSegmentation>, StoreError>;
 

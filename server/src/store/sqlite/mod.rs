@@ -373,6 +373,17 @@ impl Store for SqliteStore {
             .await
     }
 
+    async fn latest_events(&self, mission_id: MissionId, limit: u32) -> Result<Vec<MissionEvent>, StoreError> {
+        sqlx::query("SELECT * FROM mission_events WHERE mission_id = ?1 ORDER BY id DESC LIMIT ?2")
+            .bind(mission_id as i64)
+            .bind(i64::from(limit))
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(rows::event_from_row)
+            .collect()
+    }
+
     async fn segmentation(&self, mission_id: MissionId) -> Result<Option<StoredSegmentation>, StoreError> {
         let Some(frame) = self.frame(mission_id).await? else { return Ok(None) };
         let row = sqlx::query("SELECT * FROM segmentations WHERE mission_id = ?1")

@@ -461,4 +461,7 @@ async fn what_follows_a_refused_changeset_is_not_written() {
     let mut written: Vec<i64> = store.events(mission.id).await.unwrap().iter().map(|e| e.at.0).collect();
     written.sort_unstable();
     assert_eq!(written, vec![1, 5, 10, 11]);
+    // The latest ones, newest first, as the live view reads them.
+    let latest: Vec<i64> = store.latest_events(mission.id, 2).await.unwrap().iter().map(|e| e.at.0).collect();
+    assert_eq!(latest, vec![5, 11]);
 }
