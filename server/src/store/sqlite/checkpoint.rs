@@ -70,9 +70,10 @@ async fn checkpoint(pool: &SqlitePool, pragma: &'static str) -> Result<i64, sqlx
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::domain::{MissionEvent, Timestamp};
+    use crate::domain::Timestamp;
+    use crate::store::Store;
+    use crate::store::sqlite::tests::{note, spec};
     use crate::store::sqlite::{Durability, SqliteStore};
-    use crate::store::{Changeset, Store};
 
     /// With SQLite's own checkpoints turned off, the log stays bounded by
     /// ours: it is rewound after each, however much is written.
@@ -81,20 +82,13 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("wal.db");
         let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
-        let mission = store.create_mission(&crate::store::sqlite::tests::spec(), Timestamp(1)).await.unwrap();
+        let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
         let wal = dir.path().join("wal.db-wal");
         let mut sizes = Vec::new();
         for round in 0..6 {
             for i in 0..200 {
-                let event = MissionEvent {
-                    id: 0,
-                    mission_id: mission.id,
-                    at: Timestamp(i),
-                    kind: "note".into(),
-                    detail: format!("round {round}, event {i}: {}", "x".repeat(500)),
-                    actor: "test".into(),
-                };
-                store.commit(Changeset { events: vec![event], ..Changeset::default() }).await.unwrap();
+                let detail = format!("round {round}, event {i}: {}", "x".repeat(500));
+                store.commit(note(mission.id, i, detail)).await.unwrap();
             }
             sizes.push(std::fs::metadata(&wal).unwrap().len());
             let log = checkpoint(&store.pool, "PRAGMA wal_checkpoint(PASSIVE)").await.unwrap();

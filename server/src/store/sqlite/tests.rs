@@ -15,6 +15,13 @@ use exploration::segment::{CriticalPoint, Segment, Segmentation};
 
 const HASH: &str = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
 
+/// A changeset holding one note event of `mission_id` at `at`.
+pub(super) fn note(mission_id: MissionId, at: i64, detail: String) -> Changeset {
+    let event =
+        MissionEvent { id: 0, mission_id, at: Timestamp(at), kind: "note".into(), detail, actor: "test".into() };
+    Changeset { events: vec![event], ..Changeset::default() }
+}
+
 pub(super) fn spec() -> MissionSpec {
     MissionSpec {
         name: "lab".into(),
@@ -386,21 +393,9 @@ async fn a_group_commit_fails_only_the_bad_changeset() {
     let path = dir.path().join("group.db");
     let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
     let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
-    let event = |i: u64| Changeset {
-        events: vec![MissionEvent {
-            id: 0,
-            mission_id: mission.id,
-            at: Timestamp(i as i64),
-            kind: "note".into(),
-            detail: format!("event {i}"),
-            actor: "test".into(),
-        }],
-        ..Changeset::default()
-    };
-    let bad = Changeset {
-        events: vec![MissionEvent { mission_id: 999, ..event(0).events[0].clone() }],
-        ..Changeset::default()
-    };
+    let event = |i: u64| note(mission.id, i as i64, format!("event {i}"));
+    // An event of a mission that does not exist breaks a foreign key.
+    let bad = note(999, 0, "event 0".into());
     let mut commits = tokio::task::JoinSet::new();
     for i in 0..40 {
         let (store, changes) = (store.clone(), if i == 17 { bad.clone() } else { event(i) });
@@ -422,17 +417,7 @@ async fn what_follows_a_refused_changeset_is_not_written() {
     let path = dir.path().join("chains.db");
     let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
     let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
-    let event = |i: u64, mission_id: MissionId| Changeset {
-        events: vec![MissionEvent {
-            id: 0,
-            mission_id,
-            at: Timestamp(i as i64),
-            kind: "note".into(),
-            detail: format!("event {i}"),
-            actor: "test".into(),
-        }],
-        ..Changeset::default()
-    };
+    let event = |i: i64, mission_id: MissionId| note(mission_id, i, format!("event {i}"));
     // Chain a: 1 is written, 2 breaks a foreign key, 3 and 4 follow it.
     // Chain b runs beside it; the empty changeset of chain a writes nothing
     // and passes its place on.
