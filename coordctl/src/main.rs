@@ -399,7 +399,18 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             out.tasks(&tasks, &names, history);
         }
         Command::Events { mission } => {
-            let events = api.list_events(pb::ListEventsRequest { mission_id: mission }).await?.into_inner().events;
+            let mut events = Vec::new();
+            let mut after_id = 0;
+            loop {
+                let request = pb::ListEventsRequest { mission_id: mission, after_id, ..Default::default() };
+                let page = api.list_events(request).await?.into_inner();
+                events.extend(page.events);
+                if page.next_after_id == 0 {
+                    break;
+                }
+                anyhow::ensure!(page.next_after_id > after_id, "the executive's pages of events do not move on");
+                after_id = page.next_after_id;
+            }
             out.events(&events);
         }
         Command::Pin { mission, robot, point, reason } => {

@@ -176,6 +176,21 @@ async fn an_operator_lists_overrides_forbids_and_exports_the_map() {
     assert_eq!(twice.status.code(), Some(4), "{}", String::from_utf8_lossy(&twice.stderr));
     assert_eq!(coordctl(&url, Some(TOKEN), &["override", &mission, "scout", "goto", "1"]).await.status.code(), Some(2));
 
+    // More events than one page of ListEvents (1 000): coordctl reads them all.
+    let mut missions = exploration_proto::v1::missions_client::MissionsClient::with_interceptor(
+        tonic::transport::Endpoint::from_shared(url.clone()).unwrap().connect().await.unwrap(),
+        Bearer::new(Some(TOKEN)).unwrap(),
+    );
+    let control = pb::MissionControlRequest { mission_id, actor: "drill".into(), reason: String::new() };
+    for _ in 0..501 {
+        missions.resume_mission(control.clone()).await.unwrap();
+        missions.pause_mission(control.clone()).await.unwrap();
+    }
+    let events = json(&coordctl(&url, Some(TOKEN), &["--json", "events", &mission]).await);
+    let ids: Vec<u64> = events.as_array().unwrap().iter().map(|e| e["id"].as_u64().unwrap()).collect();
+    assert!(ids.len() > 1_002, "every event, not the first page: {}", ids.len());
+    assert!(ids.windows(2).all(|w| w[0] < w[1]), "oldest first, none twice");
+
     stop.cancel();
     server.await.unwrap().unwrap();
 }

@@ -118,7 +118,12 @@ impl Site {
     }
 
     async fn events(&self, mission_id: u64) -> Vec<pb::MissionEvent> {
-        self.operator().list_events(pb::ListEventsRequest { mission_id }).await.unwrap().into_inner().events
+        self.operator()
+            .list_events(pb::ListEventsRequest { mission_id, ..Default::default() })
+            .await
+            .unwrap()
+            .into_inner()
+            .events
     }
 }
 
@@ -395,6 +400,38 @@ async fn a_paused_mission_holds_every_robot_until_resumed() {
     site.until(mission.id, "a replanning after resume", |v| v.mission.as_ref().unwrap().replans > replans).await;
     let kinds: Vec<String> = site.events(mission.id).await.into_iter().map(|e| e.kind).collect();
     assert!(kinds.contains(&"mission_paused".into()) && kinds.contains(&"mission_resumed".into()), "{kinds:?}");
+}
+
+#[tokio::test]
+async fn the_event_log_is_read_in_pages_that_add_up_to_the_whole() {
+    let site = Site::start().await;
+    let mission = site.mission("nearest", 1000.0, 1000.0).await;
+    let mut operator = site.operator();
+    let control = pb::MissionControlRequest { mission_id: mission.id, actor: "carol".into(), reason: "drill".into() };
+    for _ in 0..3 {
+        operator.pause_mission(control.clone()).await.unwrap();
+        operator.resume_mission(control.clone()).await.unwrap();
+    }
+    let whole = operator.list_events(pb::ListEventsRequest { mission_id: mission.id, ..Default::default() }).await;
+    let whole = whole.unwrap().into_inner();
+    assert!(whole.events.len() >= 6, "{:?}", whole.events);
+    assert_eq!(whole.next_after_id, 0, "everything fits the default page");
+
+    let (mut paged, mut after_id, mut pages) = (Vec::new(), 0, 0);
+    loop {
+        let request = pb::ListEventsRequest { mission_id: mission.id, limit: 2, after_id };
+        let page = operator.list_events(request).await.unwrap().into_inner();
+        assert!(page.events.len() <= 2, "a page holds at most its limit");
+        paged.extend(page.events);
+        pages += 1;
+        if page.next_after_id == 0 {
+            break;
+        }
+        assert_eq!(page.next_after_id, paged.last().unwrap().id, "the cursor is the page's last event");
+        after_id = page.next_after_id;
+    }
+    assert_eq!(paged, whole.events, "the pages, in order, are the whole log");
+    assert_eq!(pages, whole.events.len().div_ceil(2) + usize::from(whole.events.len() % 2 == 0));
 }
 
 #[tokio::test]

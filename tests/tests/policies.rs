@@ -66,7 +66,7 @@ async fn the_api_lists_every_policy_and_switches_them_on_a_running_mission() {
     assert_eq!(status.code(), Code::NotFound);
     assert!(
         missions
-            .list_events(pb::ListEventsRequest { mission_id: mission.id })
+            .list_events(pb::ListEventsRequest { mission_id: mission.id, ..Default::default() })
             .await
             .unwrap()
             .into_inner()
@@ -82,8 +82,12 @@ async fn the_api_lists_every_policy_and_switches_them_on_a_running_mission() {
     let after = fleet.get_assignment(pb::GetAssignmentRequest { robot_id: robot.id }).await.unwrap().into_inner();
     assert_eq!(after.policy, "minpos");
     assert!(after.version > before.version || after.task_id == before.task_id);
-    let events =
-        missions.list_events(pb::ListEventsRequest { mission_id: mission.id }).await.unwrap().into_inner().events;
+    let events = missions
+        .list_events(pb::ListEventsRequest { mission_id: mission.id, ..Default::default() })
+        .await
+        .unwrap()
+        .into_inner()
+        .events;
     assert_eq!(events.len(), 1);
     assert_eq!(events[0].kind, "policy_changed");
     assert_eq!(events[0].actor, "alice");
@@ -183,8 +187,11 @@ async fn a_given_segmentation_is_planned_on_kept_and_taken_back() {
     let mut by_room: Vec<u32> = pairs.iter().map(|p| p.1).collect();
     by_room.sort_unstable();
     assert!(by_room.windows(2).all(|w| w[0] != w[1]), "a room split into segments: {pairs:?}");
-    let events =
-        missions.list_events(pb::ListEventsRequest { mission_id: report.mission_id }).await.unwrap().into_inner();
+    let events = missions
+        .list_events(pb::ListEventsRequest { mission_id: report.mission_id, ..Default::default() })
+        .await
+        .unwrap()
+        .into_inner();
     assert!(events.events.iter().any(|e| e.kind == "segmentation_given" && e.actor == "fleet-sim"), "{events:?}");
 
     // Bad runs are refused, naming the field, and change nothing.
@@ -272,7 +279,7 @@ async fn coordctl_gives_a_mission_the_rooms_of_its_finished_map() {
     assert!(!ok && err.contains("the mission's map is"), "{err}");
     let events = exec
         .missions()
-        .list_events(pb::ListEventsRequest { mission_id: id.parse().unwrap() })
+        .list_events(pb::ListEventsRequest { mission_id: id.parse().unwrap(), ..Default::default() })
         .await
         .unwrap()
         .into_inner()

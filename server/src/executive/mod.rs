@@ -496,10 +496,10 @@ impl Executive {
         Ok(self.store.latest_events(mission_id, limit).await?)
     }
 
-    /// A mission's events, oldest first.
-    pub async fn events(&self, mission_id: MissionId) -> Result<Vec<MissionEvent>, Error> {
+    /// A mission's first `limit` events after `after_id` (0: from the start), oldest first.
+    pub async fn events(&self, mission_id: MissionId, after_id: u64, limit: u32) -> Result<Vec<MissionEvent>, Error> {
         self.mission_handle(mission_id)?;
-        Ok(self.store.events(mission_id).await?)
+        Ok(self.store.events(mission_id, after_id, limit).await?)
     }
 
     /// A mission's latest segmentation, if one was computed.

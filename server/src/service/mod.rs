@@ -25,6 +25,9 @@ use crate::store::TaskFilter;
 
 /// Most mission views a watcher gets per second.
 const WATCH_MIN_INTERVAL: std::time::Duration = std::time::Duration::from_millis(250);
+/// ListEvents' page when the caller gives no limit, and its largest.
+const EVENTS_PAGE: u32 = 1000;
+const EVENTS_PAGE_MAX: u32 = 5000;
 
 pub mod convert;
 
@@ -203,9 +206,16 @@ impl Missions for ExplorationService {
         request: Request<pb::ListEventsRequest>,
     ) -> Result<Response<pb::ListEventsResponse>, Status> {
         self.caller(&request)?;
-        let id = required_id(request.into_inner().mission_id, "mission_id")?;
-        let events = self.executive.events(id).await?;
-        Ok(Response::new(pb::ListEventsResponse { events: events.iter().map(convert::event).collect() }))
+        let r = request.into_inner();
+        let id = required_id(r.mission_id, "mission_id")?;
+        let limit = if r.limit == 0 { EVENTS_PAGE } else { r.limit.min(EVENTS_PAGE_MAX) };
+        let events = self.executive.events(id, r.after_id, limit).await?;
+        // A short page is the last; a full one may have more behind it.
+        let next_after_id = match events.last() {
+            Some(last) if events.len() == limit as usize => last.id,
+            _ => 0,
+        };
+        Ok(Response::new(pb::ListEventsResponse { events: events.iter().map(convert::event).collect(), next_after_id }))
     }
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]

@@ -301,8 +301,9 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// A robot's latest bids.
     async fn bids(&self, robot_id: RobotId) -> Result<Vec<Bid>, StoreError>;
 
-    /// A mission's events, oldest first.
-    async fn events(&self, mission_id: MissionId) -> Result<Vec<MissionEvent>, StoreError>;
+    /// A mission's first `limit` events after the one with identity
+    /// `after_id` (0: from the start), oldest first.
+    async fn events(&self, mission_id: MissionId, after_id: u64, limit: u32) -> Result<Vec<MissionEvent>, StoreError>;
 
     /// A mission's latest `limit` events, newest first.
     async fn latest_events(&self, mission_id: MissionId, limit: u32) -> Result<Vec<MissionEvent>, StoreError>;

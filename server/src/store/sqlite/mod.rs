@@ -368,9 +368,18 @@ impl Store for SqliteStore {
         self.all("SELECT * FROM bids WHERE robot_id = ?1 ORDER BY ordinal", robot_id, rows::bid_from_row).await
     }
 
-    async fn events(&self, mission_id: MissionId) -> Result<Vec<MissionEvent>, StoreError> {
-        self.all("SELECT * FROM mission_events WHERE mission_id = ?1 ORDER BY id", mission_id, rows::event_from_row)
-            .await
+    async fn events(&self, mission_id: MissionId, after_id: u64, limit: u32) -> Result<Vec<MissionEvent>, StoreError> {
+        // Identities are SQLite rowids (at most i64::MAX): a larger cursor is past them all.
+        let Ok(after_id) = i64::try_from(after_id) else { return Ok(Vec::new()) };
+        sqlx::query("SELECT * FROM mission_events WHERE mission_id = ?1 AND id > ?2 ORDER BY id LIMIT ?3")
+            .bind(mission_id as i64)
+            .bind(after_id)
+            .bind(i64::from(limit))
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(rows::event_from_row)
+            .collect()
     }
 
     async fn latest_events(&self, mission_id: MissionId, limit: u32) -> Result<Vec<MissionEvent>, StoreError> {

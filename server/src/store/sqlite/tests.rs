@@ -232,7 +232,7 @@ async fn a_changeset_round_trips_through_a_real_file() {
     assert!(store.tasks(filter).await.unwrap().is_empty());
     assert_eq!(tasks[0].gain_region, Some(CellRect::new(1, 2, 3, 4)));
     assert_eq!(missions[0].spec.policy.name(), "minpos");
-    let events = store.events(mission.id).await.unwrap();
+    let events = store.events(mission.id, 0, u32::MAX).await.unwrap();
     assert_eq!(events.len(), 1);
     assert_eq!((events[0].kind.as_str(), events[0].actor.as_str()), ("policy_changed", "ops"));
     assert_eq!(store.segmentation(mission.id).await.unwrap(), Some(segmentation));
@@ -405,7 +405,7 @@ async fn a_group_commit_fails_only_the_bad_changeset() {
     assert_eq!(outcomes.iter().filter(|ok| !**ok).count(), 1, "only the bad changeset fails");
     store.close().await;
     let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
-    assert_eq!(store.events(mission.id).await.unwrap().len(), 39);
+    assert_eq!(store.events(mission.id, 0, u32::MAX).await.unwrap().len(), 39);
 }
 
 /// A changeset that follows one the store refused is not written, nor is
@@ -443,10 +443,17 @@ async fn what_follows_a_refused_changeset_is_not_written() {
     store.commit(event(5, mission.id)).await.unwrap();
     store.close().await;
     let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
-    let mut written: Vec<i64> = store.events(mission.id).await.unwrap().iter().map(|e| e.at.0).collect();
+    let mut written: Vec<i64> = store.events(mission.id, 0, u32::MAX).await.unwrap().iter().map(|e| e.at.0).collect();
     written.sort_unstable();
     assert_eq!(written, vec![1, 5, 10, 11]);
     // The latest ones, newest first, as the live view reads them.
     let latest: Vec<i64> = store.latest_events(mission.id, 2).await.unwrap().iter().map(|e| e.at.0).collect();
     assert_eq!(latest, vec![5, 11]);
+    // Pages after a cursor, as ListEvents reads them, add up to the whole.
+    let all: Vec<u64> = store.events(mission.id, 0, u32::MAX).await.unwrap().iter().map(|e| e.id).collect();
+    let first: Vec<u64> = store.events(mission.id, 0, 3).await.unwrap().iter().map(|e| e.id).collect();
+    let rest: Vec<u64> = store.events(mission.id, first[2], 3).await.unwrap().iter().map(|e| e.id).collect();
+    assert_eq!([first, rest].concat(), all);
+    assert!(all.is_sorted(), "oldest first");
+    assert!(store.events(mission.id, u64::MAX, 3).await.unwrap().is_empty(), "a cursor past every rowid");
 }
