@@ -136,3 +136,17 @@ def test_the_example_operator_lists_watches_and_overrides(open_coordinator: Coor
     assert "1 robots" in run("watch", str(mission.id), "--views", "1")
     # The target is the centre of the cell holding the point.
     assert "goto to (2.05, 1.05)" in run("override", str(robot.id), "--goto", "2,1", "--reason", "look")
+
+
+def test_events_are_read_page_by_page_oldest_first(open_coordinator: Coordinator) -> None:
+    with Executive(open_coordinator.address) as executive:
+        mission = executive.create_mission("logged", frame(20, 10), policy="nearest")
+        control = pb.MissionControlRequest(mission_id=mission.id, actor="carol", reason="drill")
+        for _ in range(3):
+            executive.missions.PauseMission(control, metadata=executive.metadata)
+            executive.missions.ResumeMission(control, metadata=executive.metadata)
+        whole = list(executive.events(mission.id))
+        paged = list(executive.events(mission.id, page_size=2))
+        assert [e.kind for e in paged].count("mission_paused") == 3
+        assert paged == whole
+        assert [e.id for e in paged] == sorted({e.id for e in paged}), "oldest first, none twice"

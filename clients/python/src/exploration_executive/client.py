@@ -141,6 +141,20 @@ class Executive:
     def robots(self, mission_id: int) -> list[pb.Robot]:
         return list(self._call(self.missions.ListRobots, pb.ListRobotsRequest(mission_id=mission_id)).robots)
 
+    def events(self, mission_id: int, *, page_size: int = 0) -> Iterator[pb.MissionEvent]:
+        """Every event of the mission, oldest first, read a page at a time
+        (``page_size`` events; 0 lets the executive choose, 1000)."""
+        after_id = 0
+        while True:
+            request = pb.ListEventsRequest(mission_id=mission_id, limit=page_size, after_id=after_id)
+            page = self._call(self.missions.ListEvents, request)
+            yield from page.events
+            if page.next_after_id == 0:
+                return
+            if page.next_after_id <= after_id:
+                raise RuntimeError("the executive's pages of events do not move on")
+            after_id = page.next_after_id
+
     def watch_mission(self, mission_id: int) -> Iterator[pb.MissionView]:
         """The mission and its robots each time they change (until cancelled)."""
         request = pb.WatchMissionRequest(mission_id=mission_id)
