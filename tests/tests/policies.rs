@@ -64,15 +64,7 @@ async fn the_api_lists_every_policy_and_switches_them_on_a_running_mission() {
     }
     let status = missions.set_policy(pb::SetPolicyRequest { mission_id: 99, ..set("minpos", &[]) }).await.unwrap_err();
     assert_eq!(status.code(), Code::NotFound);
-    assert!(
-        missions
-            .list_events(pb::ListEventsRequest { mission_id: mission.id, ..Default::default() })
-            .await
-            .unwrap()
-            .into_inner()
-            .events
-            .is_empty()
-    );
+    assert!(common::events(&mut missions, mission.id).await.is_empty());
 
     let changed = missions.set_policy(set("minpos", &[("switch_margin", 2.0)])).await.unwrap().into_inner();
     let policy = changed.policy.unwrap();
@@ -82,12 +74,7 @@ async fn the_api_lists_every_policy_and_switches_them_on_a_running_mission() {
     let after = fleet.get_assignment(pb::GetAssignmentRequest { robot_id: robot.id }).await.unwrap().into_inner();
     assert_eq!(after.policy, "minpos");
     assert!(after.version > before.version || after.task_id == before.task_id);
-    let events = missions
-        .list_events(pb::ListEventsRequest { mission_id: mission.id, ..Default::default() })
-        .await
-        .unwrap()
-        .into_inner()
-        .events;
+    let events = common::events(&mut missions, mission.id).await;
     assert_eq!(events.len(), 1);
     assert_eq!(events[0].kind, "policy_changed");
     assert_eq!(events[0].actor, "alice");
@@ -187,12 +174,8 @@ async fn a_given_segmentation_is_planned_on_kept_and_taken_back() {
     let mut by_room: Vec<u32> = pairs.iter().map(|p| p.1).collect();
     by_room.sort_unstable();
     assert!(by_room.windows(2).all(|w| w[0] != w[1]), "a room split into segments: {pairs:?}");
-    let events = missions
-        .list_events(pb::ListEventsRequest { mission_id: report.mission_id, ..Default::default() })
-        .await
-        .unwrap()
-        .into_inner();
-    assert!(events.events.iter().any(|e| e.kind == "segmentation_given" && e.actor == "fleet-sim"), "{events:?}");
+    let events = common::events(&mut missions, report.mission_id).await;
+    assert!(events.iter().any(|e| e.kind == "segmentation_given" && e.actor == "fleet-sim"), "{events:?}");
 
     // Bad runs are refused, naming the field, and change nothing.
     let set = |mission_id: u64, label_runs: Vec<u8>| pb::SetGivenSegmentationRequest {
@@ -277,13 +260,7 @@ async fn coordctl_gives_a_mission_the_rooms_of_its_finished_map() {
     assert_eq!(serde_json::from_str::<serde_json::Value>(&given).unwrap()["given_segmentation"], true, "{given}");
     let (ok, _, err) = run(vec!["rooms".into(), id.clone(), warehouse]).await.unwrap();
     assert!(!ok && err.contains("the mission's map is"), "{err}");
-    let events = exec
-        .missions()
-        .list_events(pb::ListEventsRequest { mission_id: id.parse().unwrap(), ..Default::default() })
-        .await
-        .unwrap()
-        .into_inner()
-        .events;
+    let events = common::events(&mut exec.missions(), id.parse().unwrap()).await;
     assert_eq!(events.iter().filter(|e| e.kind == "segmentation_given" && e.actor == "alice").count(), 1, "{events:?}");
     let (ok, online, err) = run(vec!["rooms".into(), id, "--online".into()]).await.unwrap();
     assert!(ok, "{err}");

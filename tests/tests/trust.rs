@@ -470,12 +470,7 @@ async fn smaller_findings_get_precise_statuses_and_change_nothing() {
     let a = register(&mut fleet, mission.id, "a", 1.0, 1.0).await;
     let b = register(&mut fleet, mission.id, "b", 3.0, 1.0).await;
     fleet.update_map(update(a.id, 1, 1.0, 1.0, vec![patch(0, 0, 40, 15, 0.1)])).await.unwrap();
-    let events_before = missions
-        .list_events(pb::ListEventsRequest { mission_id: mission.id, ..Default::default() })
-        .await
-        .unwrap()
-        .into_inner()
-        .events;
+    let events_before = common::events(&mut missions, mission.id).await;
 
     // SetPolicy with a 1 MiB actor: refused; with a 1 MiB reason: cut.
     let huge = "x".repeat(1 << 20);
@@ -487,12 +482,8 @@ async fn smaller_findings_get_precise_statuses_and_change_nothing() {
     };
     assert_eq!(missions.set_policy(set(&huge, "")).await.unwrap_err().code(), Code::InvalidArgument);
     missions.set_policy(set("ops", &huge)).await.unwrap();
-    let events = missions
-        .list_events(pb::ListEventsRequest { mission_id: mission.id, ..Default::default() })
-        .await
-        .unwrap()
-        .into_inner();
-    let detail = &events.events.last().unwrap().detail;
+    let events = common::events(&mut missions, mission.id).await;
+    let detail = &events.last().unwrap().detail;
     assert!(detail.len() < 1_000, "the reason is cut: {} bytes", detail.len());
 
     // Names with line breaks or NUL: refused (a \n forged lines in the text log).
@@ -571,12 +562,8 @@ async fn smaller_findings_get_precise_statuses_and_change_nothing() {
     assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
 
     // Nothing above changed the mission but the policy and the region's two events.
-    let events = missions
-        .list_events(pb::ListEventsRequest { mission_id: mission.id, ..Default::default() })
-        .await
-        .unwrap()
-        .into_inner();
-    assert_eq!(events.events.len(), events_before.len() + 3);
+    let events = common::events(&mut missions, mission.id).await;
+    assert_eq!(events.len(), events_before.len() + 3);
     let stored = missions.get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
     assert_eq!((stored.map_updates, stored.robots), (1, 2));
     exec.stop().await;

@@ -190,6 +190,12 @@ pub async fn register(fleet: &mut FleetClient<Channel>, mission_id: u64, name: &
     fleet.register_robot(registration(mission_id, name, x, y)).await.unwrap().into_inner().robot.unwrap()
 }
 
+/// A mission's events, oldest first (ListEvents' first page: at most 1 000).
+pub async fn events(missions: &mut MissionsClient<Channel>, mission_id: u64) -> Vec<pb::MissionEvent> {
+    let request = pb::ListEventsRequest { mission_id, ..Default::default() };
+    missions.list_events(request).await.unwrap().into_inner().events
+}
+
 /// A probability patch with every cell at `p`.
 pub fn patch(x: u32, y: u32, width: u32, height: u32, p: f32) -> pb::MapPatch {
     pb::MapPatch {

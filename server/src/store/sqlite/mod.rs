@@ -130,6 +130,14 @@ impl SqliteStore {
         sqlx::query(sql).bind(key as i64).fetch_all(&self.pool).await?.iter().map(read).collect()
     }
 
+    /// The events a query over `mission_events` selects, checked.
+    async fn events_of(
+        &self,
+        query: sqlx::query::Query<'_, sqlx::Sqlite, sqlx::sqlite::SqliteArguments>,
+    ) -> Result<Vec<MissionEvent>, StoreError> {
+        query.fetch_all(&self.pool).await?.iter().map(rows::event_from_row).collect()
+    }
+
     /// The grid frame of a mission, checked.
     async fn frame(&self, mission_id: MissionId) -> Result<Option<exploration::grid::GridFrame>, StoreError> {
         let row = sqlx::query("SELECT id, resolution, origin_x, origin_y, width, height FROM missions WHERE id = ?1")
@@ -371,26 +379,13 @@ impl Store for SqliteStore {
     async fn events(&self, mission_id: MissionId, after_id: u64, limit: u32) -> Result<Vec<MissionEvent>, StoreError> {
         // Identities are SQLite rowids (at most i64::MAX): a larger cursor is past them all.
         let Ok(after_id) = i64::try_from(after_id) else { return Ok(Vec::new()) };
-        sqlx::query("SELECT * FROM mission_events WHERE mission_id = ?1 AND id > ?2 ORDER BY id LIMIT ?3")
-            .bind(mission_id as i64)
-            .bind(after_id)
-            .bind(i64::from(limit))
-            .fetch_all(&self.pool)
-            .await?
-            .iter()
-            .map(rows::event_from_row)
-            .collect()
+        let sql = "SELECT * FROM mission_events WHERE mission_id = ?1 AND id > ?2 ORDER BY id LIMIT ?3";
+        self.events_of(sqlx::query(sql).bind(mission_id as i64).bind(after_id).bind(i64::from(limit))).await
     }
 
     async fn latest_events(&self, mission_id: MissionId, limit: u32) -> Result<Vec<MissionEvent>, StoreError> {
-        sqlx::query("SELECT * FROM mission_events WHERE mission_id = ?1 ORDER BY id DESC LIMIT ?2")
-            .bind(mission_id as i64)
-            .bind(i64::from(limit))
-            .fetch_all(&self.pool)
-            .await?
-            .iter()
-            .map(rows::event_from_row)
-            .collect()
+        let sql = "SELECT * FROM mission_events WHERE mission_id = ?1 ORDER BY id DESC LIMIT ?2";
+        self.events_of(sqlx::query(sql).bind(mission_id as i64).bind(i64::from(limit))).await
     }
 
     async fn segmentation(&self, mission_id: MissionId) -> Result<Option<StoredSegmentation>, StoreError> {
