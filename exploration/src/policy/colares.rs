@@ -28,7 +28,11 @@
 //! sees every other, so meetings add no decision points. With `commit` off
 //! it chooses again at every replanning, which the paper does not do: Eq.
 //! 4's factor peaks at a distance, so a robot approaching its choice finds
-//! it less attractive and turns back (`commit = 0` can livelock). Where
+//! it less attractive and turns back (`commit = 0` can livelock). With
+//! `commit = 2` a robot keeps its cell until it stands on it (or cannot
+//! reach it), as a navigation goal is kept until reached: the other reading
+//! of "navigates to it", since a sensor that reaches further than a cell
+//! explores the chosen cell before the robot gets there. Where
 //! utilities tie, the first frontier cell in row order wins (the paper is
 //! silent on ties).
 //!
@@ -78,10 +82,10 @@ pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
         },
         ParamSpec {
             name: "commit",
-            description: "1, the paper's: a robot keeps the frontier cell it chose while that cell is still frontier; 0: it chooses again at every replanning (not in the paper; can livelock, as Eq. 4 peaks at a distance)",
+            description: "1, the paper's: a robot keeps the frontier cell it chose while that cell is still frontier; 2: until it stands on it (or cannot reach it); 0: it chooses again at every replanning (not in the paper; can livelock, as Eq. 4 peaks at a distance)",
             default: 1.0,
             min: 0.0,
-            max: 1.0,
+            max: 2.0,
         },
         ParamSpec {
             name: "window",
@@ -98,7 +102,7 @@ pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
             beta: c.get("beta"),
             sigma: c.get("sigma"),
             window: c.get("window").round() as usize,
-            commit: c.get("commit") >= 0.5,
+            commit: Commit::from_param(c.get("commit")),
         })
     },
 };
@@ -116,9 +120,31 @@ pub struct Colares {
     pub window: usize,
     /// Hysteresis: a robot's current target scores this much more.
     pub switch_margin: f64,
-    /// Whether a robot keeps its frontier cell while it is still frontier,
-    /// as the paper's robots navigate to the frontier they chose.
-    pub commit: bool,
+    /// How long a robot keeps the frontier cell it chose.
+    pub commit: Commit,
+}
+
+/// How long a robot keeps the frontier cell it chose (§3–4: the paper's
+/// robots navigate to the frontier they chose).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Commit {
+    /// Not at all: it chooses again at every replanning.
+    Never,
+    /// While the cell is still frontier.
+    WhileFrontier,
+    /// Until it stands on the cell, or cannot reach it.
+    UntilReached,
+}
+
+impl Commit {
+    /// From the `commit` parameter: 0, 1 or 2, rounded.
+    fn from_param(value: f64) -> Self {
+        match value.round() as i64 {
+            i64::MIN..=0 => Self::Never,
+            1 => Self::WhileFrontier,
+            _ => Self::UntilReached,
+        }
+    }
 }
 
 /// Eq. 4: the distance factor w^(α−1) · (1 − w)^(β−1) of a normalized
@@ -202,8 +228,12 @@ impl Policy for Colares {
             .map(|i| {
                 let robot = &input.robots[i];
                 let still_frontier = |c: Cell| frame.contains(c) && !in_window[frame.index(c)].is_nan();
-                let committed =
-                    robot.current.filter(|c| self.commit && c.target != robot.cell && still_frontier(c.target));
+                let keeps = |target: Cell| match self.commit {
+                    Commit::Never => false,
+                    Commit::WhileFrontier => still_frontier(target),
+                    Commit::UntilReached => true,
+                };
+                let committed = robot.current.filter(|c| c.target != robot.cell && keeps(c.target));
                 if let Some((current, cost)) =
                     committed.and_then(|c| robot.cost_to(&maps[i], c.target).map(|cost| (c, cost)))
                 {
@@ -295,7 +325,8 @@ mod tests {
             "######################", //
         ]);
         let robots = [robot(0, Cell::new(0, 1), 3.0)];
-        let colares = |alpha, beta| Colares { alpha, beta, sigma: 0.15, window: 5, switch_margin: 0.0, commit: false };
+        let colares =
+            |alpha, beta| Colares { alpha, beta, sigma: 0.15, window: 5, switch_margin: 0.0, commit: Commit::Never };
         let near = plan_targets(&colares(2.0, 9.0), &grid, &robots)[0].unwrap();
         let far = plan_targets(&colares(9.0, 2.0), &grid, &robots)[0].unwrap();
         // Peaks at w = 1/9 and 8/9 of the 21 cells.
@@ -339,6 +370,14 @@ mod tests {
         ]);
         let again = plan_with_defaults("colares", &seen, &heading)[0].unwrap();
         assert!((5..=9).contains(&again.x), "{again:?}");
+
+        // With commit = 2 it keeps (15, 2) although it has been seen, until it stands there.
+        let overrides = std::collections::BTreeMap::from([("commit".to_owned(), 2.0)]);
+        let policy = crate::policy::PolicyConfig::new("colares", &overrides).unwrap().build();
+        let until_reached = |robots: &[RobotView]| plan_targets(policy.as_ref(), &seen, robots)[0];
+        assert_eq!(until_reached(&heading), Some(Cell::new(15, 2)));
+        let arrived = [heading_for(robot(0, Cell::new(15, 2), 3.0), Cell::new(15, 2))];
+        assert_ne!(until_reached(&arrived), Some(Cell::new(15, 2)), "there, it chooses again");
     }
 
     /// §3.3's coordination term: another robot's negative wavefront makes

@@ -26,7 +26,7 @@ mod unassigned;
 
 pub use burgard::{Burgard, coverage_probability};
 pub use burgard_joint::BurgardJoint;
-pub use colares::{Colares, distance_factor, information_potential};
+pub use colares::{Colares, Commit, distance_factor, information_potential};
 pub use greedy::Greedy;
 pub use hungarian::Hungarian;
 pub use minpos::MinPos;
