@@ -432,6 +432,16 @@ async fn the_event_log_is_read_in_pages_that_add_up_to_the_whole() {
     }
     assert_eq!(paged, whole.events, "the pages, in order, are the whole log");
     assert_eq!(pages, whole.events.len().div_ceil(2) + usize::from(whole.events.len() % 2 == 0));
+
+    // Worst values: the largest limit is capped, not refused; a cursor past
+    // every identity is an empty last page; an unknown mission is NOT_FOUND.
+    let request = pb::ListEventsRequest { mission_id: mission.id, limit: u32::MAX, after_id: 0 };
+    assert_eq!(operator.list_events(request).await.unwrap().into_inner(), whole);
+    let request = pb::ListEventsRequest { mission_id: mission.id, limit: 2, after_id: u64::MAX };
+    let past = operator.list_events(request).await.unwrap().into_inner();
+    assert!(past.events.is_empty() && past.next_after_id == 0, "{past:?}");
+    let request = pb::ListEventsRequest { mission_id: mission.id + 1000, ..Default::default() };
+    assert_eq!(operator.list_events(request).await.unwrap_err().code(), Code::NotFound);
 }
 
 #[tokio::test]

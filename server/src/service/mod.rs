@@ -25,9 +25,22 @@ use crate::store::TaskFilter;
 
 /// Most mission views a watcher gets per second.
 const WATCH_MIN_INTERVAL: std::time::Duration = std::time::Duration::from_millis(250);
-/// ListEvents' page when the caller gives no limit, and its largest.
-const EVENTS_PAGE: u32 = 1000;
-const EVENTS_PAGE_MAX: u32 = 5000;
+/// How many items a listing returns: `default` when the caller gives no
+/// limit (0), and never more than `max`.
+struct PageLimit {
+    default: u32,
+    max: u32,
+}
+
+impl PageLimit {
+    fn of(&self, requested: u32) -> u32 {
+        if requested == 0 { self.default } else { requested.min(self.max) }
+    }
+}
+
+const TASKS_PAGE: PageLimit = PageLimit { default: 1000, max: 100_000 };
+/// Events are at most ~1 KB each: 5 000 stay under gRPC's 4 MB client limit.
+const EVENTS_PAGE: PageLimit = PageLimit { default: 1000, max: 5000 };
 
 pub mod convert;
 
@@ -167,7 +180,7 @@ impl Missions for ExplorationService {
             robot_id: (r.robot_id != 0).then_some(r.robot_id),
             kind: convert::task_kind_filter(r.kind)?,
             open_only: r.open_only,
-            limit: if r.limit == 0 { 1000 } else { r.limit.min(100_000) },
+            limit: TASKS_PAGE.of(r.limit),
         };
         let tasks = self.executive.tasks(filter).await?;
         Ok(Response::new(pb::ListTasksResponse { tasks: tasks.iter().map(Into::into).collect() }))
@@ -208,7 +221,7 @@ impl Missions for ExplorationService {
         self.caller(&request)?;
         let r = request.into_inner();
         let id = required_id(r.mission_id, "mission_id")?;
-        let limit = if r.limit == 0 { EVENTS_PAGE } else { r.limit.min(EVENTS_PAGE_MAX) };
+        let limit = EVENTS_PAGE.of(r.limit);
         let events = self.executive.events(id, r.after_id, limit).await?;
         // A short page is the last; a full one may have more behind it.
         let next_after_id = match events.last() {
