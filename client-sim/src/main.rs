@@ -593,6 +593,11 @@ fn print_summary(r: &RunReport, return_home: bool) {
     let distances: Vec<String> = r.distance_per_robot.iter().map(|d| format!("{d:.1}")).collect();
     println!("distance per robot (m): {}", distances.join(", "));
     println!("replans {}  map updates {}  overlap {:.1} %", r.replans, r.map_updates, 100.0 * r.overlap);
+    println!(
+        "targets abandoned before reached: {} ({:.2} per robot per 100 steps)",
+        r.target_switches,
+        r.switches_per_robot_per_100_steps()
+    );
     match r.home_steps {
         Some(home) => println!("every robot home {home} steps after exploration ended"),
         None if return_home => println!("not every robot got home within the step limit"),

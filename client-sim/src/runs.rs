@@ -10,7 +10,7 @@ use crate::experiment::config::{ExperimentError, io};
 use crate::stats::Sample;
 
 /// The columns of `runs.csv`.
-pub const RUN_COLUMNS: [&str; 25] = [
+pub const RUN_COLUMNS: [&str; 26] = [
     "id",
     "world",
     "policy",
@@ -36,6 +36,7 @@ pub const RUN_COLUMNS: [&str; 25] = [
     "wall_time_s",
     "reachable_cells",
     "comm_range_m",
+    "switches_per_100",
 ];
 
 fn csv_error(path: &Path) -> impl Fn(csv::Error) -> ExperimentError + '_ {
@@ -119,7 +120,19 @@ pub fn samples(rows: &[Row], name: &str) -> BTreeMap<CellKey, Sample> {
 /// Writes `summary.csv`: per cell, runs, completions, and mean ± 95 % CI of each figure.
 pub fn summarize(out: &Path) -> Result<(), ExperimentError> {
     let rows = read_runs(out)?;
-    let figures = ["steps", "t50", "t90", "t95", "t100", "distance", "idle_steps", "overlap", "replans", "wall_time_s"];
+    let figures = [
+        "steps",
+        "t50",
+        "t90",
+        "t95",
+        "t100",
+        "distance",
+        "idle_steps",
+        "overlap",
+        "replans",
+        "wall_time_s",
+        "switches_per_100",
+    ];
     let per_figure: Vec<BTreeMap<CellKey, Sample>> = figures.iter().map(|f| samples(&rows, f)).collect();
     let mut cells: BTreeMap<CellKey, (usize, usize, usize)> = BTreeMap::new();
     for row in &rows {

@@ -188,6 +188,7 @@ fn report_row(spec: &RunSpec, policy: &str, outcome: &Result<RunReport, String>,
                 format!("{:.3}", r.wall_time_s),
                 r.reachable_cells.to_string(),
                 r.comm_range_m.map_or(String::new(), |m| format!("{m:.3}")),
+                format!("{:.4}", r.switches_per_robot_per_100_steps()),
             ]);
         }
         Err(e) => {

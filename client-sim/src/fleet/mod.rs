@@ -285,6 +285,8 @@ pub struct RunReport {
     pub distance_per_robot: Vec<f64>,
     /// Steps robots spent without a task, summed over the team.
     pub idle_steps: u64,
+    /// Targets abandoned for another before being reached, summed over the team.
+    pub target_switches: u64,
     /// Replannings of the executive.
     pub replans: u64,
     /// Map updates the executive applied.
@@ -323,6 +325,13 @@ pub struct RunReport {
     /// executive had completed the mission and every live robot was home;
     /// `None` when not asked for or not reached within the step limit.
     pub home_steps: Option<u64>,
+}
+
+impl RunReport {
+    /// Targets abandoned before being reached, per robot per 100 steps.
+    pub fn switches_per_robot_per_100_steps(&self) -> f64 {
+        100.0 * self.target_switches as f64 / (self.robots.max(1) as f64 * self.steps.max(1) as f64)
+    }
 }
 
 /// How the executive dealt with injected faults.

@@ -223,6 +223,7 @@ impl Exploration {
             t100: self.milestones[3],
             distance_per_robot: robots.iter().map(|r| r.distance_m).collect(),
             idle_steps: self.idle_total,
+            target_switches: robots.iter().map(|r| r.target_switches).sum(),
             replans: from_executive.summary.replans,
             map_updates: from_executive.summary.map_updates,
             updates_acknowledged: robots.iter().map(|r| r.acknowledged_updates).sum(),

@@ -123,6 +123,7 @@ impl SimRobot {
             stream: rx,
             stream_lags: 0,
             acknowledged_updates: 0,
+            target_switches: 0,
             capabilities: Capabilities {
                 sensor_range_m: model.sensor_range_m,
                 field_of_view_rad: model.field_of_view_rad,

@@ -165,6 +165,12 @@ pub struct SimRobot {
     pub stream_lags: u64,
     /// Map updates the executive acknowledged (or recognised as already applied).
     pub acknowledged_updates: u64,
+    /// Times it was sent to a target out of sensor range of the one it had,
+    /// before reaching that (not counting new targets after it reported one
+    /// unreachable): how much a policy makes robots change their minds. A
+    /// new cell in sensor range of the old looks at the same place, as when
+    /// a frontier recedes while the robot approaches it.
+    pub target_switches: u64,
     capabilities: Capabilities,
     bidding: Option<Bidding>,
     steps_since_bid: u64,
@@ -295,7 +301,7 @@ impl SimRobot {
     /// or reports failure when the target cannot be reached.
     async fn adopt(&mut self, mut assignment: pb::Assignment, world: &World, team: &TeamMap) -> Result<(), RobotError> {
         // Up to a few rounds: a failure report brings a new assignment.
-        for _ in 0..4 {
+        for round in 0..4 {
             self.check_stream(assignment.version).await;
             let target = assignment
                 .target
@@ -306,6 +312,10 @@ impl SimRobot {
             let task = target.map(|target| Task { id: assignment.task_id, target, hold });
             if task == self.task {
                 return Ok(());
+            }
+            let same_place = (self.capabilities.sensor_range_m / world.frame.resolution).max(1.0);
+            if round == 0 && is_switch(self.task, task, self.cell, same_place) {
+                self.target_switches += 1;
             }
             self.task = task;
             self.path.clear();
@@ -347,5 +357,37 @@ impl SimRobot {
             }
         }
         Ok(())
+    }
+}
+
+/// Whether going from task `from` to task `to` at `cell` abandons a target
+/// before reaching it for one more than `same_place` cells away.
+fn is_switch(from: Option<Task>, to: Option<Task>, cell: Cell, same_place: f64) -> bool {
+    match (from, to) {
+        (Some(from), Some(to)) => {
+            !from.hold && !to.hold && from.target != cell && from.target.distance(to.target) > same_place
+        }
+        _ => false,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn task(x: i32) -> Option<Task> {
+        Some(Task { id: x as u64, target: Cell::new(x, 0), hold: false })
+    }
+
+    #[test]
+    fn only_a_jump_away_from_an_unreached_target_is_a_switch() {
+        let here = Cell::new(0, 5);
+        assert!(is_switch(task(10), task(30), here, 5.0), "abandoned for a far target");
+        assert!(!is_switch(task(10), task(14), here, 5.0), "the frontier receded: the same place");
+        assert!(!is_switch(task(10), task(30), Cell::new(10, 0), 5.0), "reached, then sent on");
+        assert!(!is_switch(None, task(30), here, 5.0), "first task");
+        assert!(!is_switch(task(10), None, here, 5.0), "task withdrawn");
+        let hold = Some(Task { id: 1, target: Cell::new(10, 0), hold: true });
+        assert!(!is_switch(hold, task(30), here, 5.0), "released from a hold");
     }
 }
