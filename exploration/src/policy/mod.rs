@@ -22,6 +22,7 @@ mod nearest;
 mod registry;
 mod segmentation;
 mod simmons;
+mod tours;
 mod unassigned;
 
 pub use burgard::{Burgard, coverage_probability};
@@ -34,6 +35,7 @@ pub use nearest::Nearest;
 pub use registry::{ParamSpec, PolicyConfig, PolicyDescriptor, PolicyError, catalogue};
 pub use segmentation::SegmentationPolicy;
 pub use simmons::{Simmons, compute_bids};
+pub use tours::{MAX_TOUR, Tours, first_stop_of_shortest_tour};
 pub use unassigned::Unassigned;
 
 /// A robot's identity, as the executive numbers them.
@@ -184,8 +186,12 @@ pub struct ClusterCosts {
     rows: Vec<Vec<Option<ClusterCost>>>,
     /// The clusters' wavefronts and the robots' cells, when the costs came
     /// from them.
-    descent: Option<(std::sync::Arc<crate::cost::TraversalMap>, Vec<crate::cost::CostMap>, Vec<Cell>)>,
+    descent: Option<ClusterWavefronts>,
 }
+
+/// The traversal, one wavefront per cluster, and the robots' cells.
+type ClusterWavefronts =
+    (std::sync::Arc<crate::cost::TraversalMap>, Vec<std::sync::Arc<crate::cost::CostMap>>, Vec<Cell>);
 
 impl std::ops::Deref for ClusterCosts {
     type Target = Vec<Vec<Option<ClusterCost>>>;
@@ -196,6 +202,12 @@ impl std::ops::Deref for ClusterCosts {
 }
 
 impl ClusterCosts {
+    /// The clusters' wavefronts, one per cluster in cluster order, when the
+    /// costs were read from them.
+    pub fn cluster_maps(&self) -> Option<&[std::sync::Arc<crate::cost::CostMap>]> {
+        self.descent.as_ref().map(|(_, maps, _)| maps.as_slice())
+    }
+
     /// The cell robot `i` goes to for cluster `j`.
     pub fn cell(&self, i: usize, j: usize) -> Option<Cell> {
         let c = self.rows.get(i)?.get(j).copied().flatten()?;
@@ -264,7 +276,7 @@ pub fn cluster_cost_matrix(input: &PlanningInput<'_>, costs: &mut CostCache<'_>,
     }
     let traversal = costs.traversal(kinds[0]);
     let maps = crate::cost::in_parallel(input.clusters, input.threads, |cluster| {
-        crate::cost::cost_map(&traversal, &cluster.cells)
+        std::sync::Arc::new(crate::cost::cost_map(&traversal, &cluster.cells))
     });
     let rows = input
         .robots

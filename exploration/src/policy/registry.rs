@@ -94,6 +94,7 @@ pub fn catalogue() -> &'static [PolicyDescriptor] {
         super::hungarian::DESCRIPTOR,
         super::colares::DESCRIPTOR,
         super::unassigned::DESCRIPTOR,
+        super::tours::DESCRIPTOR,
     ]
 }
 

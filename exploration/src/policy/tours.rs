@@ -1,0 +1,361 @@
+//! `tours`: ours. MinPos's spread, each robot visiting the frontiers it is
+//! first at in the order of a short tour, and robots that are first nowhere
+//! sent where nobody is heading.
+//!
+//! - **Who is first where** (Bautin, Simonin & Charpillet 2011, Algorithm 3,
+//!   position 0; a partition of the frontier by path distance, as Hu et al.
+//!   2020 partition the unknown by Voronoi cells): each frontier cluster
+//!   belongs to the robot with the least path cost to it, ties to the robot
+//!   listed first. A robot that owns clusters is first there, where MinPos
+//!   would send it too.
+//! - **Tours** (Kulich, Faigl & Přeučil 2011: a frontier's cost is its place
+//!   in a tour, which avoids leaving small pockets behind): MinPos and the
+//!   closest frontier take the nearest owned cluster and leave behind the
+//!   ones that lie the other way, and a late trip back to them is what the
+//!   tail of an exploration is made of (in `bautin-fig9-10`, 17–31 % of the
+//!   time to full coverage passes after 90 %). A robot here goes to the
+//!   first cluster of the shortest open path that starts at it and visits
+//!   its `tour_length` nearest owned clusters, on path costs between
+//!   clusters (one wavefront per cluster on the tour), solved exactly by
+//!   Held–Karp dynamic programming.
+//! - **Helpers**: a robot that owns nothing (larger teams, where robots
+//!   outnumber the clusters they are first at) takes, cheapest pair first
+//!   (Bautin's Algorithm 2), a cluster no robot is heading to, such as the
+//!   later stops of another robot's tour; when every cluster has a robot, it
+//!   takes MinPos's choice (the least position, then the least cost).
+//! - **Hysteresis** (Simmons et al. 2000 keep a robot's task unless a clearly
+//!   better one appears): the robot's current cluster costs it
+//!   `switch_margin` less, in its ownership, its tour and its helper choice.
+//!
+//! The target in a cluster is its cell nearest to the robot, as in MinPos.
+
+use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_METRES};
+use super::{ClusterCosts, Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
+use crate::cost::{CostCache, CostMap, TraversalKind};
+
+pub(super) const NAME: &str = "tours";
+
+/// The most clusters one tour visits: Held–Karp takes O(2^m·m²).
+pub const MAX_TOUR: usize = 8;
+
+const TOUR_LENGTH: ParamSpec = ParamSpec {
+    name: "tour_length",
+    description: "how many of its nearest owned frontier clusters a robot's tour visits; 1 is MinPos with helpers",
+    default: 5.0,
+    min: 1.0,
+    max: MAX_TOUR as f64,
+};
+
+/// The catalogue's entry: name, what it does, parameters with units, and
+/// how it is built from a validated configuration.
+pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
+    name: NAME,
+    description: "ours: each robot is sent along the shortest tour through the frontiers it is closest to (Bautin et al. 2011, Kulich et al. 2011); robots closest nowhere take the frontiers nobody is heading to",
+    params: &[MIN_FRONTIER_SIZE, SWITCH_METRES, TOUR_LENGTH],
+    build: |c| {
+        Box::new(Tours { switch_margin: c.get("switch_margin"), tour_length: c.get("tour_length").round() as usize })
+    },
+};
+
+/// Our policy. Complexity: MinPos's cost matrix, one wavefront per cluster
+/// on a tour of two or more, and O(2^m·m²) per robot for its tour of m.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tours {
+    /// Hysteresis: a robot's current cluster costs it this much less, metres.
+    pub switch_margin: f64,
+    /// Clusters per tour, 1 to [`MAX_TOUR`].
+    pub tour_length: usize,
+}
+
+impl Default for Tours {
+    fn default() -> Self {
+        Self { switch_margin: SWITCH_METRES.default, tour_length: TOUR_LENGTH.default as usize }
+    }
+}
+
+impl Policy for Tours {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
+        let matrix = cluster_cost_matrix(input, costs, self.switch_margin);
+        let tours = self.tours(input, &matrix);
+        let between = costs_between_stops(input, costs, &matrix, &tours);
+        let mut chosen: Vec<Option<usize>> = tours
+            .iter()
+            .enumerate()
+            .map(|(i, stops)| {
+                let start: Vec<f64> = stops.iter().map(|&j| score(&matrix, i, j)).collect();
+                let legs: Vec<Vec<f64>> =
+                    stops.iter().map(|&a| stops.iter().map(|&b| between(a, b)).collect()).collect();
+                first_stop_of_shortest_tour(&start, &legs).map(|k| stops[k])
+            })
+            .collect();
+        send_helpers(&matrix, &mut chosen);
+        let targets = chosen
+            .iter()
+            .enumerate()
+            .map(|(i, j)| {
+                let j = (*j)?;
+                let c = matrix[i][j]?;
+                Some(Target { cell: matrix.cell(i, j)?, utility: -c.score, path_cost: c.cost, gain_region: None })
+            })
+            .collect();
+        Plan::of(targets)
+    }
+}
+
+impl Tours {
+    /// Per robot, the clusters it is first at (by score, ties to the robot
+    /// listed first), its `tour_length` nearest of them, nearest first.
+    fn tours(&self, input: &PlanningInput<'_>, matrix: &ClusterCosts) -> Vec<Vec<usize>> {
+        let mut owned: Vec<Vec<usize>> = vec![Vec::new(); input.robots.len()];
+        for j in 0..input.clusters.len() {
+            let owner = (0..input.robots.len())
+                .filter(|&i| matrix[i][j].is_some())
+                .min_by(|&a, &b| score(matrix, a, j).total_cmp(&score(matrix, b, j)).then(a.cmp(&b)));
+            if let Some(i) = owner {
+                owned[i].push(j);
+            }
+        }
+        let length = self.tour_length.clamp(1, MAX_TOUR);
+        for (i, stops) in owned.iter_mut().enumerate() {
+            stops.sort_by(|&a, &b| score(matrix, i, a).total_cmp(&score(matrix, i, b)).then(a.cmp(&b)));
+            stops.truncate(length);
+        }
+        owned
+    }
+}
+
+/// Robot `i`'s score for cluster `j` (its path cost, less the hysteresis
+/// margin on its current cluster); ∞ where it cannot reach it.
+fn score(matrix: &ClusterCosts, i: usize, j: usize) -> f64 {
+    matrix[i][j].map_or(f64::INFINITY, |c| c.score)
+}
+
+/// Path costs between the clusters on tours of two or more stops: from a
+/// wavefront of each such cluster (the matrix's own where it has them), to
+/// the other cluster's cheapest cell. Clusters' wavefronts run over the
+/// traversal of the robot whose tour they are on.
+fn costs_between_stops(
+    input: &PlanningInput<'_>,
+    costs: &mut CostCache<'_>,
+    matrix: &ClusterCosts,
+    tours: &[Vec<usize>],
+) -> impl Fn(usize, usize) -> f64 {
+    let mut wanted: Vec<(usize, TraversalKind)> = Vec::new();
+    for (i, stops) in tours.iter().enumerate().filter(|(_, stops)| stops.len() > 1) {
+        let kind = TraversalKind::free_space(input.robots[i].capabilities.footprint_radius_m);
+        wanted.extend(stops.iter().map(|&j| (j, kind)));
+    }
+    let computed: Vec<Option<std::sync::Arc<CostMap>>> = match matrix.cluster_maps() {
+        Some(maps) => wanted.iter().map(|&(j, _)| Some(maps[j].clone())).collect(),
+        None => {
+            let traversals: Vec<_> = wanted.iter().map(|&(_, kind)| costs.traversal(kind)).collect();
+            let jobs: Vec<(usize, usize)> = wanted.iter().enumerate().map(|(k, &(j, _))| (k, j)).collect();
+            crate::cost::in_parallel(&jobs, input.threads, |&(k, j)| {
+                Some(std::sync::Arc::new(crate::cost::cost_map(&traversals[k], &input.clusters[j].cells)))
+            })
+        }
+    };
+    let mut maps: std::collections::HashMap<usize, std::sync::Arc<CostMap>> = std::collections::HashMap::new();
+    for ((j, _), map) in wanted.iter().zip(computed) {
+        if let Some(map) = map {
+            maps.entry(*j).or_insert(map);
+        }
+    }
+    let clusters = input.clusters;
+    move |a: usize, b: usize| {
+        if a == b {
+            return 0.0;
+        }
+        let Some(map) = maps.get(&a) else { return f64::INFINITY };
+        clusters[b].cells.iter().filter_map(|&c| map.cost(c)).fold(f64::INFINITY, f64::min)
+    }
+}
+
+/// Robots that own no cluster: cheapest pair first onto the clusters no
+/// robot is heading to (Bautin et al. 2011, Algorithm 2); the rest take
+/// MinPos's choice, the least position and then the least score (Algorithm 3).
+fn send_helpers(matrix: &ClusterCosts, chosen: &mut [Option<usize>]) {
+    let n = chosen.len();
+    let m = matrix.first().map_or(0, Vec::len);
+    let mut heading = vec![false; m];
+    for j in chosen.iter().flatten() {
+        heading[*j] = true;
+    }
+    let helpers: Vec<usize> = (0..n).filter(|&i| chosen[i].is_none()).collect();
+    loop {
+        let free = &heading;
+        let best = helpers
+            .iter()
+            .filter(|&&i| chosen[i].is_none())
+            .flat_map(|&i| (0..m).filter(move |&j| !free[j] && matrix[i][j].is_some()).map(move |j| (i, j)))
+            .min_by(|&(a, j), &(b, k)| score(matrix, a, j).total_cmp(&score(matrix, b, k)).then((a, j).cmp(&(b, k))));
+        let Some((i, j)) = best else { break };
+        chosen[i] = Some(j);
+        heading[j] = true;
+    }
+    for &i in &helpers {
+        if chosen[i].is_some() {
+            continue;
+        }
+        let position =
+            |j: usize| (0..n).filter(|&k| k != i && matrix[k][j].is_some_and(|o| o.cost < score(matrix, i, j))).count();
+        chosen[i] = (0..m).filter(|&j| matrix[i][j].is_some()).min_by(|&a, &b| {
+            position(a).cmp(&position(b)).then(score(matrix, i, a).total_cmp(&score(matrix, i, b))).then(a.cmp(&b))
+        });
+    }
+}
+
+/// The first stop of the cheapest open path that starts at the robot and
+/// visits every stop once: `start[j]` is the cost from the robot to stop j,
+/// `between[a][b]` from stop a to stop b (∞ where there is no way). Exact,
+/// by Held–Karp dynamic programming over the stops still to visit, O(2^m·m²);
+/// `None` for no stops or more than [`MAX_TOUR`]. Ties go to the lower stop.
+/// When no path visits every stop, the cheapest stop to reach.
+pub fn first_stop_of_shortest_tour(start: &[f64], between: &[Vec<f64>]) -> Option<usize> {
+    let m = start.len();
+    if m == 0 || m > MAX_TOUR {
+        return None;
+    }
+    // to_go[visited][last]: the cheapest way on from `last` through the stops not in `visited`.
+    let full = (1usize << m) - 1;
+    let mut to_go = vec![vec![f64::INFINITY; m]; full + 1];
+    to_go[full] = vec![0.0; m];
+    for visited in (1..full).rev() {
+        for last in (0..m).filter(|&l| visited & (1 << l) != 0) {
+            to_go[visited][last] = (0..m)
+                .filter(|&next| visited & (1 << next) == 0)
+                .map(|next| between[last][next] + to_go[visited | (1 << next)][next])
+                .fold(f64::INFINITY, f64::min);
+        }
+    }
+    let tour = |j: usize| start[j] + to_go[1 << j][j];
+    let cheapest = |f: &dyn Fn(usize) -> f64| {
+        (0..m).filter(|&j| f(j).is_finite()).min_by(|&a, &b| f(a).total_cmp(&f(b)).then(a.cmp(&b)))
+    };
+    cheapest(&tour).or_else(|| cheapest(&|j| start[j]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::Cell;
+    use crate::grid::testing::grid_from_picture;
+    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
+    use crate::policy::{CurrentTask, MinPos, Nearest};
+
+    /// A corridor open at both ends, with a side opening up from it at x =
+    /// 18. The robot at x = 10 is 8 from the side opening, 10 from the left
+    /// end and 30 from the right. The nearest frontier is the side opening,
+    /// after which the left end is a long way back; the shortest tour takes
+    /// the left end first (10 + 18 + 22 = 50, against 8 + 18 + 40 = 66).
+    #[test]
+    fn a_pocket_behind_the_robot_is_visited_before_moving_on() {
+        let grid = grid_from_picture(&[
+            "##################?######################", //
+            "?.......................................?", //
+            "#########################################", //
+        ]);
+        let robots = [robot(0, Cell::new(10, 1), 1.0)];
+        let tours = plan_with_defaults("tours", &grid, &robots);
+        assert_eq!(tours[0].map(|c| c.x), Some(1), "tours goes to the pocket first: {tours:?}");
+        for other in ["nearest", "minpos", "greedy"] {
+            let targets = plan_with_defaults(other, &grid, &robots);
+            assert_eq!(targets[0], Some(Cell::new(18, 1)), "{other} takes the nearest: {targets:?}");
+        }
+    }
+
+    /// Robot 0 in a corridor is closest to both ends; robot 1 at the bottom
+    /// of a branch below it is closest to neither. MinPos sends robot 1
+    /// where it is second and nearest, behind robot 0; ours sends it to the
+    /// end robot 0 is not heading to.
+    #[test]
+    fn a_robot_first_nowhere_takes_the_cluster_nobody_is_heading_to() {
+        let grid = grid_from_picture(&[
+            "######################", //
+            "?....................?", //
+            "#########.############", //
+            "#########.############", //
+            "#########.############", //
+            "######################", //
+        ]);
+        let robots = [robot(0, Cell::new(9, 4), 1.0), robot(1, Cell::new(9, 1), 1.0)];
+        let ours = plan_with_defaults("tours", &grid, &robots);
+        assert_eq!(ours.iter().map(|t| t.map(|c| c.x)).collect::<Vec<_>>(), [Some(1), Some(20)], "{ours:?}");
+        let minpos = plan_targets(&MinPos::default(), &grid, &robots);
+        assert_eq!(minpos.iter().map(|t| t.map(|c| c.x)).collect::<Vec<_>>(), [Some(1), Some(1)], "{minpos:?}");
+        let nearest = plan_targets(&Nearest::default(), &grid, &robots);
+        assert!(nearest.iter().all(|t| t.is_some_and(|c| c.x == 1)), "{nearest:?}");
+    }
+
+    /// The pocket situation, with the robot already heading to the side
+    /// opening: a tour through the pocket first is shorter by 16, so a
+    /// margin of 20 keeps it on its way, and a margin of 1 does not.
+    #[test]
+    fn the_current_target_is_kept_unless_a_tour_is_better_by_the_margin() {
+        let grid = grid_from_picture(&[
+            "##################?######################", //
+            "?.......................................?", //
+            "#########################################", //
+        ]);
+        let mut heading = robot(0, Cell::new(10, 1), 1.0);
+        heading.current = Some(CurrentTask { target: Cell::new(18, 1), gain_region: None });
+        let kept = plan_targets(&Tours { switch_margin: 20.0, tour_length: 5 }, &grid, &[heading.clone()]);
+        assert_eq!(kept[0], Some(Cell::new(18, 1)), "{kept:?}");
+        let switched = plan_targets(&Tours { switch_margin: 1.0, tour_length: 5 }, &grid, &[heading]);
+        assert_eq!(switched[0].map(|c| c.x), Some(1), "{switched:?}");
+    }
+
+    /// The cost of the cheapest tour from the robot through every stop,
+    /// by trying every order.
+    fn brute_force(start: &[f64], between: &[Vec<f64>], first: Option<usize>) -> f64 {
+        fn walk(at: usize, left: &mut Vec<usize>, between: &[Vec<f64>]) -> f64 {
+            if left.is_empty() {
+                return 0.0;
+            }
+            let mut best = f64::INFINITY;
+            for k in 0..left.len() {
+                let next = left.remove(k);
+                best = best.min(between[at][next] + walk(next, left, between));
+                left.insert(k, next);
+            }
+            best
+        }
+        (0..start.len())
+            .filter(|&j| first.is_none_or(|f| f == j))
+            .map(|j| {
+                let mut left: Vec<usize> = (0..start.len()).filter(|&k| k != j).collect();
+                start[j] + walk(j, &mut left, between)
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    proptest::proptest! {
+        /// The first stop Held–Karp returns begins a tour as cheap as the
+        /// cheapest of all orders.
+        #[test]
+        fn the_first_stop_begins_a_cheapest_tour(
+            m in 1usize..=6,
+            values in proptest::collection::vec(0.0f64..100.0, 6 + 36),
+        ) {
+            let start: Vec<f64> = values[..m].to_vec();
+            let between: Vec<Vec<f64>> = (0..m).map(|a| (0..m).map(|b| if a == b { 0.0 } else { values[6 + a * 6 + b] }).collect()).collect();
+            let first = first_stop_of_shortest_tour(&start, &between).unwrap();
+            let best = brute_force(&start, &between, None);
+            let ours = brute_force(&start, &between, Some(first));
+            proptest::prop_assert!((ours - best).abs() <= 1e-9 * best.max(1.0), "{ours} vs {best}");
+        }
+    }
+
+    #[test]
+    fn tours_with_no_way_through_fall_back_to_the_cheapest_stop() {
+        let inf = f64::INFINITY;
+        assert_eq!(first_stop_of_shortest_tour(&[], &[]), None);
+        assert_eq!(first_stop_of_shortest_tour(&[5.0, 3.0], &[vec![0.0, inf], vec![inf, 0.0]]), Some(1));
+        assert_eq!(first_stop_of_shortest_tour(&[inf, inf], &[vec![0.0, 1.0], vec![1.0, 0.0]]), None);
+        assert_eq!(first_stop_of_shortest_tour(&[1.0; 9], &vec![vec![1.0; 9]; 9]), None, "more than MAX_TOUR");
+    }
+}
