@@ -22,8 +22,14 @@ pub struct Verdict {
 
 type Data = BTreeMap<(String, String, usize, String), Sample>;
 
+/// One figure per run, keyed by (world index, seed).
+type RunsByWorldSeed = BTreeMap<(usize, u64), f64>;
+
 /// Tests one claim on the results.
 pub fn check(experiment: &Experiment, spec: &CheckSpec, data: &Data) -> Verdict {
+    if spec.kind == "beats_best" {
+        return check_best(experiment, spec, data);
+    }
     let comm = spec
         .comm_range
         .clone()
@@ -108,6 +114,79 @@ pub fn check(experiment: &Experiment, spec: &CheckSpec, data: &Data) -> Verdict 
         "partly agrees"
     } else {
         "disagrees"
+    };
+    Verdict { word, lines }
+}
+
+/// `beats_best`: per team size, `better` against the best of `against`,
+/// over the checked worlds together. The best is the label with the lowest
+/// mean over those worlds and seeds (chosen per team size, not per world);
+/// the test pairs runs of one world and one seed, which share the world and
+/// the start.
+fn check_best(experiment: &Experiment, spec: &CheckSpec, data: &Data) -> Verdict {
+    let comm = spec.comm_range.clone().unwrap_or_else(|| "unlimited".into());
+    let worlds: Vec<String> = if spec.worlds.is_empty() {
+        experiment.worlds.iter().map(|w| w.name.clone()).collect()
+    } else {
+        spec.worlds.clone()
+    };
+    let against: Vec<String> = if spec.against.is_empty() {
+        experiment.policies.iter().map(|p| if p.label.is_empty() { p.name.clone() } else { p.label.clone() }).collect()
+    } else {
+        spec.against.clone()
+    };
+    let robots: Vec<usize> = if spec.robots.is_empty() { experiment.robots.clone() } else { spec.robots.clone() };
+    // Each run keyed by (world, seed): a seed gives every policy the same world and start.
+    let runs_of = |label: &str, n: usize| -> RunsByWorldSeed {
+        worlds
+            .iter()
+            .enumerate()
+            .filter_map(|(w, world)| data.get(&(world.clone(), label.to_owned(), n, comm.clone())).map(|s| (w, s)))
+            .flat_map(|(w, s)| s.seeded_values().filter_map(move |(seed, v)| Some(((w, seed?), v))))
+            .collect()
+    };
+    let expected = spec.expected_gain.unwrap_or(0.0);
+    let (mut holding, mut tested, mut lines) = (0, 0, Vec::new());
+    for n in robots {
+        let ours = runs_of(&spec.better, n);
+        let others: Vec<(&String, RunsByWorldSeed)> = against
+            .iter()
+            .filter(|l| **l != spec.better)
+            .map(|l| (l, runs_of(l, n)))
+            .filter(|(_, runs)| !runs.is_empty())
+            .collect();
+        // Compare on the runs every policy has, so that means are of one set.
+        let common: Vec<(usize, u64)> =
+            ours.keys().copied().filter(|k| others.iter().all(|(_, runs)| runs.contains_key(k))).collect();
+        let sample = |runs: &RunsByWorldSeed| {
+            Sample::seeded(common.iter().map(|&(w, seed)| (w as u64 * 1_000_000 + seed, runs[&(w, seed)])).collect())
+        };
+        let best = others.iter().map(|(l, runs)| (*l, sample(runs))).min_by(|a, b| a.1.mean().total_cmp(&b.1.mean()));
+        let Some((label, best)) = best else { continue };
+        let ours = sample(&ours);
+        let Some((difference, half, significant, pairs)) = paired(&ours, &best) else { continue };
+        tested += 1;
+        let gain = -100.0 * difference / best.mean();
+        let holds = if expected > 0.0 { significant && gain >= expected } else { !(significant && difference > 0.0) };
+        holding += usize::from(holds);
+        let worlds_run = common.iter().map(|(w, _)| w).collect::<std::collections::BTreeSet<_>>().len();
+        lines.push(format!(
+            "{n} robots: {} {:.0} vs the best of the others, {label}, {:.0} {} ({}{:.1} % ± {:.1}, paired over {pairs} runs in {worlds_run} worlds){}",
+            spec.better,
+            ours.mean(),
+            best.mean(),
+            spec.metric,
+            if gain >= 0.0 { "−" } else { "+" },
+            gain.abs(),
+            100.0 * half / best.mean(),
+            if significant { ", significant" } else { ", not significant" }
+        ));
+    }
+    let word = match (holding, tested) {
+        (_, 0) => "not tested",
+        (h, t) if h == t => "agrees",
+        (0, _) => "disagrees",
+        _ => "partly agrees",
     };
     Verdict { word, lines }
 }
@@ -221,6 +300,26 @@ pub fn write_report(experiments: &[(Experiment, std::path::PathBuf)], out: &Path
                 let _ = writeln!(md);
             }
         }
+        for figure in &experiment.tables {
+            let values = samples(&rows, figure);
+            let _ = writeln!(md, "`{figure}` (mean ± 95 % CI):\n");
+            let _ = writeln!(md, "| world | robots | {} |", labels.join(" | "));
+            let _ = writeln!(md, "|---|---|{}", "---|".repeat(labels.len()));
+            for world in &experiment.worlds {
+                for &n in &experiment.robots {
+                    let cells: Vec<String> = labels
+                        .iter()
+                        .map(|l| {
+                            values
+                                .get(&(world.name.clone(), l.clone(), n, "unlimited".to_owned()))
+                                .map_or("–".into(), |s| format!("{:.2} ± {:.2}", s.mean(), s.ci95()))
+                        })
+                        .collect();
+                    let _ = writeln!(md, "| {} | {n} | {} |", world.name, cells.join(" | "));
+                }
+            }
+            let _ = writeln!(md);
+        }
         for spec in &experiment.checks {
             let metric_data = samples(&rows, &spec.metric);
             let verdict = check(experiment, spec, &metric_data);
@@ -284,6 +383,12 @@ fn seeds_done(experiment: &Experiment, rows: &[Row]) -> String {
     let complete = (1..=experiment.seeds).take_while(|&s| runs_of(s) >= cells).count() as u64;
     if complete == experiment.seeds {
         format!("Seeds 1–{} per cell", experiment.seeds)
+    } else if complete == 0 {
+        format!(
+            "No seed complete of the {} planned per cell ({} of the {cells} cells have seed 1)",
+            experiment.seeds,
+            runs_of(1)
+        )
     } else {
         let partial = runs_of(complete + 1);
         format!(
@@ -295,5 +400,82 @@ fn seeds_done(experiment: &Experiment, rows: &[Row]) -> String {
                 String::new()
             }
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn experiment(check: &str) -> Experiment {
+        toml::from_str(&format!(
+            r#"
+name = "t"
+paper = "p"
+claim = "c"
+seeds = 6
+robots = [2, 4]
+[sim]
+[[worlds]]
+name = "small"
+generator = "empty"
+[[worlds]]
+name = "large"
+generator = "empty"
+[[policies]]
+name = "tours"
+[[policies]]
+name = "minpos"
+[[policies]]
+name = "greedy"
+[[checks]]
+{check}
+"#
+        ))
+        .expect("a valid experiment")
+    }
+
+    /// Steps per seed 1..=6: `base` plus a seed-dependent wobble the same
+    /// for every policy (a seed fixes world and start).
+    fn runs(data: &mut Data, world: &str, label: &str, n: usize, base: f64) {
+        let pairs = (1..=6).map(|s| (s, base + 7.0 * (s % 3) as f64 + 0.5 * (s % 2) as f64)).collect();
+        data.insert((world.into(), label.into(), n, "unlimited".into()), Sample::seeded(pairs));
+    }
+
+    #[test]
+    fn the_best_is_chosen_per_team_size_over_all_worlds_together() {
+        let mut data = Data::new();
+        // 2 robots: greedy wins the small world, minpos the two together
+        // (100 + 200 against 90 + 260); tours beats minpos by 15 %.
+        runs(&mut data, "small", "greedy", 2, 90.0);
+        runs(&mut data, "large", "greedy", 2, 260.0);
+        runs(&mut data, "small", "minpos", 2, 100.0);
+        runs(&mut data, "large", "minpos", 2, 200.0);
+        runs(&mut data, "small", "tours", 2, 85.0);
+        runs(&mut data, "large", "tours", 2, 170.0);
+        // 4 robots: tours less than 5 % better than the best (the wobble is the same in steps, not in per cent).
+        runs(&mut data, "small", "greedy", 4, 50.0);
+        runs(&mut data, "large", "greedy", 4, 100.0);
+        runs(&mut data, "small", "minpos", 4, 60.0);
+        runs(&mut data, "large", "minpos", 4, 120.0);
+        runs(&mut data, "small", "tours", 4, 47.5);
+        runs(&mut data, "large", "tours", 4, 95.0);
+        let spec = r#"claim = "x"
+kind = "beats_best"
+better = "tours"
+expected_gain = 10"#;
+        let e = experiment(spec);
+        let verdict = check(&e, &e.checks[0], &data);
+        assert_eq!(verdict.word, "partly agrees", "{verdict:?}");
+        assert!(verdict.lines[0].starts_with("2 robots") && verdict.lines[0].contains("minpos"), "{verdict:?}");
+        assert!(verdict.lines[0].contains("paired over 12 runs in 2 worlds"), "{verdict:?}");
+        assert!(verdict.lines[1].contains("greedy") && verdict.lines[1].contains("−4.6 %"), "{verdict:?}");
+        // Not significantly worse is all a gain of 0 asks.
+        let e = experiment(&spec.replace("expected_gain = 10", "expected_gain = 0"));
+        assert_eq!(check(&e, &e.checks[0], &data).word, "agrees");
+        // Against greedy alone at 2 robots: 255 against 350, a gain of 27 %.
+        let e = experiment(&format!("{spec}\nagainst = [\"greedy\"]\nrobots = [2]"));
+        let verdict = check(&e, &e.checks[0], &data);
+        assert_eq!(verdict.word, "agrees", "{verdict:?}");
     }
 }

@@ -55,6 +55,11 @@ impl Sample {
         self.values.is_empty()
     }
 
+    /// Each value with the seed of its run, where known.
+    pub fn seeded_values(&self) -> impl Iterator<Item = (Option<u64>, f64)> + '_ {
+        self.seeds.iter().copied().zip(self.values.iter().copied())
+    }
+
     /// The values.
     pub fn values(&self) -> &[f64] {
         &self.values

@@ -52,6 +52,10 @@ pub struct Experiment {
     /// Draw a picture of seed 1 of every cell.
     #[serde(default)]
     pub pictures: bool,
+    /// Figures tabulated per world beside the exploration time, e.g.
+    /// `switches_per_100`, `t90`.
+    #[serde(default)]
+    pub tables: Vec<String>,
 }
 
 fn default_time_limit() -> f64 {
@@ -202,12 +206,19 @@ pub struct CheckSpec {
     pub claim: String,
     /// `faster`: `better` significantly lower than `worse` (Welch, 95 %);
     /// `similar`: no significant difference; `gain`: mean gain of `better`
-    /// over `worse` in percent, against `expected_gain`.
+    /// over `worse` in percent, against `expected_gain`; `beats_best`: per
+    /// team size, over all the worlds together, `better` against whichever
+    /// of `against` has the lowest mean there, gaining at least
+    /// `expected_gain` percent (0: not significantly worse).
     pub kind: String,
     /// Label expected better.
     pub better: String,
-    /// Label compared with.
+    /// Label compared with (not for `beats_best`).
+    #[serde(default)]
     pub worse: String,
+    /// For `beats_best`: the labels whose best it must beat (default: every other).
+    #[serde(default)]
+    pub against: Vec<String>,
     /// The figure compared.
     #[serde(default = "default_metric")]
     pub metric: String,
