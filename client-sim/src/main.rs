@@ -519,6 +519,7 @@ async fn experiment(args: ExperimentArgs) -> anyhow::Result<()> {
     let experiment = Experiment::load(&args.config)?;
     let out = args.out.unwrap_or_else(|| PathBuf::from("docs/results").join(&experiment.name));
     if args.replot {
+        anyhow::ensure!(out.join("runs.csv").exists(), "--replot: no runs in {} to plot", out.display());
         client_sim::runs::summarize(&out)?;
         client_sim::plots::draw_plots(&experiment, &out)?;
         return Ok(());
