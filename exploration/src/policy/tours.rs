@@ -58,7 +58,8 @@ pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
 };
 
 /// Our policy. Complexity: MinPos's cost matrix, one wavefront per cluster
-/// on a tour of two or more, and O(2^m·m²) per robot for its tour of m.
+/// on a tour of two or more (at most [`wavefront_budget`]), and O(2^m·m²)
+/// per robot for its tour of m.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Tours {
     /// Hysteresis: a robot's current cluster costs it this much less, metres.
@@ -80,16 +81,19 @@ impl Policy for Tours {
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let matrix = cluster_cost_matrix(input, costs, self.switch_margin);
-        let tours = self.tours(input, &matrix);
-        let between = costs_between_stops(input, costs, &matrix, &tours);
+        let tours = self.tours(&matrix);
+        let legs = legs_between_stops(input, costs, &matrix, &tours);
         let mut chosen: Vec<Option<usize>> = tours
             .iter()
+            .zip(&legs)
             .enumerate()
-            .map(|(i, stops)| {
-                let start: Vec<f64> = stops.iter().map(|&j| score(&matrix, i, j)).collect();
-                let legs: Vec<Vec<f64>> =
-                    stops.iter().map(|&a| stops.iter().map(|&b| between(a, b)).collect()).collect();
-                first_stop_of_shortest_tour(&start, &legs).map(|k| stops[k])
+            .map(|(i, (stops, legs))| match stops.len() {
+                0 => None,
+                1 => Some(stops[0]),
+                _ => {
+                    let start: Vec<f64> = stops.iter().map(|&j| score(&matrix, i, j)).collect();
+                    first_stop_of_shortest_tour(&start, legs).map(|k| stops[k])
+                }
             })
             .collect();
         send_helpers(&matrix, &mut chosen);
@@ -109,23 +113,40 @@ impl Policy for Tours {
 impl Tours {
     /// Per robot, the clusters it is first at (by score, ties to the robot
     /// listed first), its `tour_length` nearest of them, nearest first.
-    fn tours(&self, input: &PlanningInput<'_>, matrix: &ClusterCosts) -> Vec<Vec<usize>> {
-        let mut owned: Vec<Vec<usize>> = vec![Vec::new(); input.robots.len()];
-        for j in 0..input.clusters.len() {
-            let owner = (0..input.robots.len())
+    fn tours(&self, matrix: &ClusterCosts) -> Vec<Vec<usize>> {
+        let robots = matrix.len();
+        let clusters = matrix.first().map_or(0, Vec::len);
+        let mut owned: Vec<Vec<usize>> = vec![Vec::new(); robots];
+        for j in 0..clusters {
+            let owner = (0..robots)
                 .filter(|&i| matrix[i][j].is_some())
                 .min_by(|&a, &b| score(matrix, a, j).total_cmp(&score(matrix, b, j)).then(a.cmp(&b)));
             if let Some(i) = owner {
                 owned[i].push(j);
             }
         }
-        let length = self.tour_length.clamp(1, MAX_TOUR);
         for (i, stops) in owned.iter_mut().enumerate() {
             stops.sort_by(|&a, &b| score(matrix, i, a).total_cmp(&score(matrix, i, b)).then(a.cmp(&b)));
+        }
+        // Each cluster on a tour of two or more costs a wavefront: shorten
+        // every tour alike until they fit the budget.
+        let budget = wavefront_budget(robots);
+        let mut length = self.tour_length.clamp(1, MAX_TOUR);
+        while length > 1 && owned.iter().filter(|s| s.len() > 1).map(|s| s.len().min(length)).sum::<usize>() > budget {
+            length -= 1;
+        }
+        for stops in &mut owned {
             stops.truncate(length);
         }
         owned
     }
+}
+
+/// The most cluster wavefronts one replanning computes for tours: twice
+/// the team, and at least 32, so that a map of a thousand small frontier
+/// clusters costs a bounded multiple of MinPos's one wavefront per robot.
+fn wavefront_budget(robots: usize) -> usize {
+    (2 * robots).max(32)
 }
 
 /// Robot `i`'s score for cluster `j` (its path cost, less the hysteresis
@@ -134,45 +155,61 @@ fn score(matrix: &ClusterCosts, i: usize, j: usize) -> f64 {
     matrix[i][j].map_or(f64::INFINITY, |c| c.score)
 }
 
-/// Path costs between the clusters on tours of two or more stops: from a
-/// wavefront of each such cluster (the matrix's own where it has them), to
-/// the other cluster's cheapest cell. Clusters' wavefronts run over the
-/// traversal of the robot whose tour they are on.
-fn costs_between_stops(
+/// Per robot, the path costs between the stops of its tour (row a, column
+/// b: from stop a to stop b's cheapest cell), from one wavefront per stop
+/// (the matrix's own where it has them) over the robot's traversal. Each
+/// wavefront is read and dropped at once, so that memory stays at one map
+/// per thread. Tours of one stop need none.
+fn legs_between_stops(
     input: &PlanningInput<'_>,
     costs: &mut CostCache<'_>,
     matrix: &ClusterCosts,
     tours: &[Vec<usize>],
-) -> impl Fn(usize, usize) -> f64 {
-    let mut wanted: Vec<(usize, TraversalKind)> = Vec::new();
+) -> Vec<Vec<Vec<f64>>> {
+    let reused = matrix.cluster_maps();
+    let mut jobs = Vec::new();
     for (i, stops) in tours.iter().enumerate().filter(|(_, stops)| stops.len() > 1) {
         let kind = TraversalKind::free_space(input.robots[i].capabilities.footprint_radius_m);
-        wanted.extend(stops.iter().map(|&j| (j, kind)));
+        for (a, &j) in stops.iter().enumerate() {
+            let source = match reused {
+                Some(maps) => Wavefront::Reused(maps[j].clone()),
+                None => Wavefront::Compute(costs.traversal(kind)),
+            };
+            jobs.push((i, a, source));
+        }
     }
-    let computed: Vec<Option<std::sync::Arc<CostMap>>> = match matrix.cluster_maps() {
-        Some(maps) => wanted.iter().map(|&(j, _)| Some(maps[j].clone())).collect(),
-        None => {
-            let traversals: Vec<_> = wanted.iter().map(|&(_, kind)| costs.traversal(kind)).collect();
-            let jobs: Vec<(usize, usize)> = wanted.iter().enumerate().map(|(k, &(j, _))| (k, j)).collect();
-            crate::cost::in_parallel(&jobs, input.threads, |&(k, j)| {
-                Some(std::sync::Arc::new(crate::cost::cost_map(&traversals[k], &input.clusters[j].cells)))
+    let rows = crate::cost::in_parallel(&jobs, input.threads, |(i, a, source)| {
+        let stops = &tours[*i];
+        let map = match source {
+            Wavefront::Reused(map) => map.clone(),
+            Wavefront::Compute(traversal) => {
+                std::sync::Arc::new(crate::cost::cost_map(traversal, &input.clusters[stops[*a]].cells))
+            }
+        };
+        stops
+            .iter()
+            .enumerate()
+            .map(|(b, &j)| {
+                if b == *a {
+                    return 0.0;
+                }
+                input.clusters[j].cells.iter().filter_map(|&c| map.cost(c)).fold(f64::INFINITY, f64::min)
             })
-        }
-    };
-    let mut maps: std::collections::HashMap<usize, std::sync::Arc<CostMap>> = std::collections::HashMap::new();
-    for ((j, _), map) in wanted.iter().zip(computed) {
-        if let Some(map) = map {
-            maps.entry(*j).or_insert(map);
-        }
+            .collect::<Vec<f64>>()
+    });
+    let mut legs: Vec<Vec<Vec<f64>>> = vec![Vec::new(); tours.len()];
+    for ((i, _, _), row) in jobs.iter().zip(rows) {
+        legs[*i].push(row);
     }
-    let clusters = input.clusters;
-    move |a: usize, b: usize| {
-        if a == b {
-            return 0.0;
-        }
-        let Some(map) = maps.get(&a) else { return f64::INFINITY };
-        clusters[b].cells.iter().filter_map(|&c| map.cost(c)).fold(f64::INFINITY, f64::min)
-    }
+    legs
+}
+
+/// Where a stop's wavefront comes from.
+enum Wavefront {
+    /// The cost matrix's own.
+    Reused(std::sync::Arc<CostMap>),
+    /// Computed over this traversal.
+    Compute(std::sync::Arc<crate::cost::TraversalMap>),
 }
 
 /// Robots that own no cluster: cheapest pair first onto the clusters no
@@ -307,6 +344,36 @@ mod tests {
         assert_eq!(kept[0], Some(Cell::new(18, 1)), "{kept:?}");
         let switched = plan_targets(&Tours { switch_margin: 1.0, tour_length: 5 }, &grid, &[heading]);
         assert_eq!(switched[0].map(|c| c.x), Some(1), "{switched:?}");
+    }
+
+    /// Robot i is 1 m from clusters 4i..4i+4 and 50 m from the others.
+    fn four_clusters_each(robots: usize) -> ClusterCosts {
+        let cost = |i: usize, j: usize| if j / 4 == i { 1.0 } else { 50.0 };
+        let rows = (0..robots)
+            .map(|i| {
+                (0..4 * robots)
+                    .map(|j| {
+                        Some(super::super::ClusterCost {
+                            cell: Cell::new(j as i32, 0),
+                            cost: cost(i, j),
+                            score: cost(i, j),
+                            descend: false,
+                        })
+                    })
+                    .collect()
+            })
+            .collect();
+        ClusterCosts { rows, descent: None }
+    }
+
+    #[test]
+    fn tours_are_shortened_alike_to_fit_the_wavefront_budget() {
+        let policy = Tours { switch_margin: 1.0, tour_length: 5 };
+        // 4 robots own 4 clusters each: 16 wavefronts, within 32.
+        assert!(policy.tours(&four_clusters_each(4)).iter().all(|t| t.len() == 4));
+        // 10 robots: 40 would exceed it; 3 stops each make 30.
+        let tours = policy.tours(&four_clusters_each(10));
+        assert!(tours.iter().enumerate().all(|(i, t)| t.len() == 3 && t.iter().all(|j| j / 4 == i)), "{tours:?}");
     }
 
     /// The cost of the cheapest tour from the robot through every stop,
