@@ -77,7 +77,7 @@ pub fn check(experiment: &Experiment, spec: &CheckSpec, data: &Data) -> Verdict 
             // Seconds need a decimal: runs take a few of them.
             let digits = if spec.metric.ends_with("_s") { 1 } else { 0 };
             lines.push(format!(
-                "{world}, {n} robots: {} {:.*} vs {} {:.*} {} ({}{:.1} % ± {:.1}, {test}){}",
+                "{world}, {n} robots: {} {:.*} vs {} {:.*} {} {}",
                 spec.better,
                 digits,
                 better.mean(),
@@ -85,10 +85,7 @@ pub fn check(experiment: &Experiment, spec: &CheckSpec, data: &Data) -> Verdict 
                 digits,
                 worse.mean(),
                 spec.metric,
-                if gain >= 0.0 { "−" } else { "+" },
-                gain.abs(),
-                100.0 * half / worse.mean(),
-                if significant { ", significant" } else { ", not significant" }
+                difference_text(gain, 100.0 * half / worse.mean(), &test, significant)
             ));
         }
     }
@@ -116,6 +113,18 @@ pub fn check(experiment: &Experiment, spec: &CheckSpec, data: &Data) -> Verdict 
         "disagrees"
     };
     Verdict { word, lines }
+}
+
+/// "(−12.3 % ± 4.5, paired over 20 seeds), significant": a gain in per
+/// cent (shown as fewer, "−", or more, "+"), its 95 % half-width, the test,
+/// and whether the difference is significant.
+fn difference_text(gain: f64, half_percent: f64, test: &str, significant: bool) -> String {
+    format!(
+        "({}{:.1} % ± {half_percent:.1}, {test}), {}",
+        if gain >= 0.0 { "−" } else { "+" },
+        gain.abs(),
+        if significant { "significant" } else { "not significant" }
+    )
 }
 
 /// `beats_best`: per team size, `better` against the best of `against`,
@@ -171,15 +180,17 @@ fn check_best(experiment: &Experiment, spec: &CheckSpec, data: &Data) -> Verdict
         holding += usize::from(holds);
         let worlds_run = common.iter().map(|(w, _)| w).collect::<std::collections::BTreeSet<_>>().len();
         lines.push(format!(
-            "{n} robots: {} {:.0} vs the best of the others, {label}, {:.0} {} ({}{:.1} % ± {:.1}, paired over {pairs} runs in {worlds_run} worlds){}",
+            "{n} robots: {} {:.0} vs the best of the others, {label}, {:.0} {} {}",
             spec.better,
             ours.mean(),
             best.mean(),
             spec.metric,
-            if gain >= 0.0 { "−" } else { "+" },
-            gain.abs(),
-            100.0 * half / best.mean(),
-            if significant { ", significant" } else { ", not significant" }
+            difference_text(
+                gain,
+                100.0 * half / best.mean(),
+                &format!("paired over {pairs} runs in {worlds_run} worlds"),
+                significant
+            )
         ));
     }
     let word = match (holding, tested) {
