@@ -8,7 +8,7 @@ use common::{TestExecutive, bundled_map, create_mission, patch, register, update
 use exploration_proto::v1 as pb;
 use tonic::Code;
 
-const POLICIES: [&str; 10] = [
+const POLICIES: [&str; 11] = [
     "nearest",
     "greedy",
     "burgard",
@@ -19,6 +19,7 @@ const POLICIES: [&str; 10] = [
     "hungarian",
     "colares",
     "unassigned",
+    "tours",
 ];
 
 #[tokio::test]

@@ -20,8 +20,18 @@ const MAPS: [&str; 10] = [
     "mrpb_maze",
 ];
 
-const POLICIES: [&str; 9] =
-    ["nearest", "greedy", "burgard", "burgard-joint", "simmons", "minpos", "segmentation", "hungarian", "colares"];
+const POLICIES: [&str; 10] = [
+    "nearest",
+    "greedy",
+    "burgard",
+    "burgard-joint",
+    "simmons",
+    "minpos",
+    "segmentation",
+    "hungarian",
+    "colares",
+    "tours",
+];
 
 /// Every policy on every shared map, the team size cycling through 1, 3
 /// and 8 so that each policy meets each size on several maps. The full
