@@ -458,19 +458,19 @@ name = "greedy"
         let mut data = Data::new();
         // 2 robots: greedy wins the small world, minpos the two together
         // (100 + 200 against 90 + 260); tours beats minpos by 15 %.
-        runs(&mut data, "small", "greedy", 2, 90.0);
-        runs(&mut data, "large", "greedy", 2, 260.0);
-        runs(&mut data, "small", "minpos", 2, 100.0);
-        runs(&mut data, "large", "minpos", 2, 200.0);
-        runs(&mut data, "small", "tours", 2, 85.0);
-        runs(&mut data, "large", "tours", 2, 170.0);
-        // 4 robots: tours less than 5 % better than the best (the wobble is the same in steps, not in per cent).
-        runs(&mut data, "small", "greedy", 4, 50.0);
-        runs(&mut data, "large", "greedy", 4, 100.0);
-        runs(&mut data, "small", "minpos", 4, 60.0);
-        runs(&mut data, "large", "minpos", 4, 120.0);
-        runs(&mut data, "small", "tours", 4, 47.5);
-        runs(&mut data, "large", "tours", 4, 95.0);
+        // 4 robots: tours less than 5 % better than the best (the wobble is
+        // the same in steps, not in per cent).
+        for (n, label, small, large) in [
+            (2, "greedy", 90.0, 260.0),
+            (2, "minpos", 100.0, 200.0),
+            (2, "tours", 85.0, 170.0),
+            (4, "greedy", 50.0, 100.0),
+            (4, "minpos", 60.0, 120.0),
+            (4, "tours", 47.5, 95.0),
+        ] {
+            runs(&mut data, "small", label, n, small);
+            runs(&mut data, "large", label, n, large);
+        }
         let spec = r#"claim = "x"
 kind = "beats_best"
 better = "tours"
