@@ -1,14 +1,15 @@
 //! One replanning per policy, for 10 and 50 robots, on the largest shared map
-//! (`stage_hospital`, 1 400 × 534 cells at 0.1 m) half explored; and for
-//! 200 robots on a generated office four times its area, half explored.
+//! (`stage_hospital`, 1 400 × 534 cells at 0.1 m) half explored, and for 50
+//! robots with a tenth of it known (early in a mission); and for 200 robots
+//! on a generated office four times its area, half explored.
 //!
 //! The shared maps are read from `EXPLORATION_SHARED_MAPS` (or
 //! `../shared/maps` beside the workspace); without them the bench says so and
 //! runs on the largest bundled map instead.
 //!
-//! The half-explored state: the free cells nearest to the start by path
-//! length up to half the reachable area are known, with the walls around
-//! them; the robots stand on known free cells drawn with a fixed seed.
+//! The explored state: the free cells nearest to the start by path length,
+//! up to half (or a tenth) of the reachable area, are known, with the walls
+//! around them; the robots stand on known free cells drawn with a fixed seed.
 
 use std::collections::VecDeque;
 use std::path::PathBuf;
@@ -43,9 +44,9 @@ fn map() -> PathBuf {
     }
 }
 
-/// Known: the reachable free cells closest to the start, half of them, and
-/// every wall cell touching them.
-fn half_explored(world: &World) -> OccupancyGrid {
+/// Known: the reachable free cells closest to the start, `percent` of them,
+/// and every wall cell touching them.
+fn explored(world: &World, percent: usize) -> OccupancyGrid {
     let frame = world.frame;
     let mut grid = OccupancyGrid::unknown(frame);
     let mut queue = VecDeque::from([world.start]);
@@ -53,7 +54,7 @@ fn half_explored(world: &World) -> OccupancyGrid {
     seen[frame.index(world.start)] = true;
     let mut known = 0;
     while let Some(c) = queue.pop_front() {
-        if known * 2 >= world.reachable_cells {
+        if known * 100 >= world.reachable_cells * percent {
             break;
         }
         grid.set(c, 12);
@@ -78,18 +79,20 @@ fn half_explored(world: &World) -> OccupancyGrid {
 fn replan(c: &mut Criterion) {
     let path = map();
     let hospital = World::load(&path, Some(0.1), StartChoice::Auto, 0).expect("the map loads");
-    plan_every_policy(c, &hospital, &[10, 50]);
+    plan_every_policy(c, &hospital, 50, &[10, 50]);
+    // Early in a mission: a tenth of it known.
+    plan_every_policy(c, &hospital, 10, &[50]);
     // Issue 11's second size: 200 robots on a generated office four times
     // the hospital's area (280 × 107 m at 0.1 m), half explored.
     let (w, h) = (hospital.frame.width as f64 * 0.2, hospital.frame.height as f64 * 0.2);
     let office = generate(Generator::Office, w, h, 0.1, 1, StartChoice::Auto).expect("the office generates");
-    plan_every_policy(c, &office, &[200]);
+    plan_every_policy(c, &office, 50, &[200]);
 }
 
 /// One replanning of every policy, for each team size in `teams`, on
-/// `world` half explored.
-fn plan_every_policy(c: &mut Criterion, world: &World, teams: &[usize]) {
-    let grid = half_explored(world);
+/// `world` with `percent` of its reachable cells known.
+fn plan_every_policy(c: &mut Criterion, world: &World, percent: usize, teams: &[usize]) {
+    let grid = explored(world, percent);
     let frame = *grid.frame();
     let frontier = FrontierMap::detect(&grid);
     let free: Vec<Cell> = (0..frame.len()).filter(|&i| grid.value_at(i) == 12).map(|i| frame.cell(i)).collect();
@@ -118,7 +121,8 @@ fn plan_every_policy(c: &mut Criterion, world: &World, teams: &[usize]) {
             excluded: Vec::new(),
         })
         .collect();
-    let mut group = c.benchmark_group(format!("replan {}", world.name));
+    let known = if percent == 50 { String::new() } else { format!(" {percent}% known") };
+    let mut group = c.benchmark_group(format!("replan {}{known}", world.name));
     group.sample_size(10);
     for descriptor in catalogue() {
         let config = PolicyConfig::default_for(descriptor.name).unwrap();

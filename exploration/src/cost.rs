@@ -21,12 +21,15 @@ use crate::grid::{Cell, CellClass, GridFrame, NEIGHBOURS_8, OccupancyGrid, UNKNO
 
 /// What entering each cell costs, per metre; `f32::INFINITY` where impassable.
 ///
-/// Stored with a one-cell impassable border around the grid, so that the
-/// cost-map loops need no bounds checks.
+/// Stored over a [`Window`]: the bounding box of the passable cells with a
+/// one-cell impassable border, so that the cost-map loops need no bounds
+/// checks and a search over a partly explored map touches only the part
+/// that is known.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TraversalMap {
     frame: GridFrame,
-    /// (width + 2) × (height + 2) costs, row-major, border infinite.
+    window: Window,
+    /// The window's costs, row-major, border infinite.
     padded: Vec<f32>,
     /// The same cells' passability as bits: small enough to stay in cache.
     passable_bits: Vec<u64>,
@@ -34,35 +37,81 @@ pub struct TraversalMap {
     step_range: (f32, f32),
 }
 
-/// Row-major index of `cell` in a grid padded by one cell on every side.
-#[inline]
-fn padded_index(frame: &GridFrame, cell: Cell) -> usize {
-    (cell.y + 1) as usize * (frame.width as usize + 2) + (cell.x + 1) as usize
+/// The cells a search can touch: the bounding box of the passable cells,
+/// grown by two impassable cells on every side, stored row by row. A search
+/// may start on the inner ring (a robot just outside the passable cells can
+/// still step in); the outer ring keeps every neighbour index in bounds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Window {
+    /// The grid cell at the window's first index.
+    corner: Cell,
+    /// Cells per row, border included.
+    stride: usize,
+    /// Rows, border included.
+    rows: usize,
+}
+
+impl Window {
+    /// The bounding box of the cells where `passable` holds (a border
+    /// alone when there are none), grown by two.
+    fn around(frame: &GridFrame, passable: impl Fn(usize) -> bool) -> Self {
+        let (w, h) = (frame.width as usize, frame.height as usize);
+        let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+        for y in 0..h {
+            let row = y * w;
+            let Some(first) = (0..w).find(|&x| passable(row + x)) else { continue };
+            let last = (first..w).rev().find(|&x| passable(row + x)).unwrap_or(first);
+            (x0, x1, y0, y1) = (x0.min(first), x1.max(last), y0.min(y), y);
+        }
+        if x0 == usize::MAX {
+            return Self { corner: Cell::new(-2, -2), stride: 4, rows: 4 };
+        }
+        Self { corner: Cell::new(x0 as i32 - 2, y0 as i32 - 2), stride: x1 - x0 + 5, rows: y1 - y0 + 5 }
+    }
+
+    fn len(&self) -> usize {
+        self.stride * self.rows
+    }
+
+    /// The index of `cell`, if the window holds it.
+    #[inline]
+    fn index(&self, cell: Cell) -> Option<usize> {
+        let x = usize::try_from(cell.x - self.corner.x).ok().filter(|&x| x < self.stride)?;
+        let y = usize::try_from(cell.y - self.corner.y).ok().filter(|&y| y < self.rows)?;
+        Some(y * self.stride + x)
+    }
+
+    /// The index of `cell` if a search may start there: off the outer ring.
+    #[inline]
+    fn start_index(&self, cell: Cell) -> Option<usize> {
+        let i = self.index(cell)?;
+        let (x, y) = (i % self.stride, i / self.stride);
+        (x > 0 && y > 0 && x + 1 < self.stride && y + 1 < self.rows).then_some(i)
+    }
 }
 
 impl TraversalMap {
     fn from_unpadded(frame: GridFrame, cost_per_metre: &[f32]) -> Self {
-        let padded = pad(&frame, cost_per_metre);
+        let window = Window::around(&frame, |i| cost_per_metre[i].is_finite());
+        let mut padded = vec![f32::INFINITY; window.len()];
         let mut passable_bits = vec![0u64; padded.len().div_ceil(64)];
         let mut step_range = (f32::INFINITY, 0.0f32);
-        for (i, &c) in padded.iter().enumerate() {
-            if c.is_finite() {
-                passable_bits[i / 64] |= 1 << (i % 64);
-                step_range = (step_range.0.min(c), step_range.1.max(c));
+        let inner = window.stride - 4;
+        for r in 2..window.rows - 2 {
+            let y = (window.corner.y + r as i32) as usize;
+            let from = y * frame.width as usize + (window.corner.x + 2) as usize;
+            let row = &cost_per_metre[from..from + inner];
+            for (k, &c) in row.iter().enumerate() {
+                let i = r * window.stride + 2 + k;
+                padded[i] = c;
+                if c.is_finite() {
+                    passable_bits[i / 64] |= 1 << (i % 64);
+                    step_range = (step_range.0.min(c), step_range.1.max(c));
+                }
             }
         }
-        Self { frame, padded, passable_bits, step_range }
+        Self { frame, window, padded, passable_bits, step_range }
     }
-}
-
-fn pad(frame: &GridFrame, values: &[f32]) -> Vec<f32> {
-    let (w, h) = (frame.width as usize, frame.height as usize);
-    let stride = w + 2;
-    let mut padded = vec![f32::INFINITY; stride * (h + 2)];
-    for (y, row) in values.chunks_exact(w).enumerate() {
-        padded[(y + 1) * stride + 1..(y + 1) * stride + 1 + w].copy_from_slice(row);
-    }
-    padded
 }
 
 impl TraversalMap {
@@ -118,12 +167,12 @@ impl TraversalMap {
     /// Whether a robot may enter a cell (never off the grid).
     #[inline]
     pub fn passable(&self, cell: Cell) -> bool {
-        self.frame.contains(cell) && self.padded[padded_index(&self.frame, cell)].is_finite()
+        self.window.index(cell).is_some_and(|i| self.padded[i].is_finite())
     }
 
-    /// Cost per metre of entering an on-grid cell.
+    /// Cost per metre of entering a cell (infinite where impassable or off the grid).
     pub fn cost_per_metre(&self, cell: Cell) -> f32 {
-        self.padded[padded_index(&self.frame, cell)]
+        self.window.index(cell).map_or(f32::INFINITY, |i| self.padded[i])
     }
 }
 
@@ -204,8 +253,13 @@ pub fn gaussian_blur(values: &[f32], width: usize, height: usize, sigma: f64) ->
 #[derive(Debug, Clone, PartialEq)]
 pub struct CostMap {
     frame: GridFrame,
-    /// Padded like [`TraversalMap`]; infinite where unreachable.
+    /// The traversal's window.
+    window: Window,
+    /// Over the window; infinite where unreachable.
     cost: Vec<f32>,
+    /// Sources outside the window, with their index among the sources: a
+    /// robot where nothing passable is near reaches only its own cell.
+    stranded: Vec<(Cell, u32)>,
 }
 
 impl CostMap {
@@ -215,8 +269,18 @@ impl CostMap {
         if !self.frame.contains(cell) {
             return None;
         }
-        let c = self.cost[padded_index(&self.frame, cell)];
+        let c = self.raw(cell);
         c.is_finite().then_some(f64::from(c))
+    }
+
+    /// The label of a cell, infinite where unreachable or off the grid.
+    #[inline]
+    fn raw(&self, cell: Cell) -> f32 {
+        match self.window.index(cell).map(|i| self.cost[i]) {
+            Some(c) if c.is_finite() => c,
+            _ if self.stranded.iter().any(|(s, _)| *s == cell) => 0.0,
+            _ => f32::INFINITY,
+        }
     }
 
     /// The grid frame.
@@ -226,7 +290,7 @@ impl CostMap {
 
     /// Number of reachable cells.
     pub fn reachable_cells(&self) -> usize {
-        self.cost.iter().filter(|c| c.is_finite()).count()
+        self.cost.iter().filter(|c| c.is_finite()).count() + self.stranded.len()
     }
 
     /// The cheapest path from a source to `goal` (source first, goal last),
@@ -237,7 +301,7 @@ impl CostMap {
         let mut path = vec![goal];
         let mut current = goal;
         loop {
-            let here = self.cost[padded_index(&self.frame, current)];
+            let here = self.raw(current);
             if here == 0.0 {
                 break;
             }
@@ -251,7 +315,7 @@ impl CostMap {
                 if !self.frame.contains(n) || !diagonal_clear {
                     continue;
                 }
-                let c = self.cost[padded_index(&self.frame, n)];
+                let c = self.raw(n);
                 if c < here && best.is_none_or(|(b, _)| c < b) {
                     best = Some((c, n));
                 }
@@ -307,7 +371,7 @@ pub fn cost_map_with(traversal: &TraversalMap, sources: &[Cell], corners: Corner
 #[derive(Debug, Clone, PartialEq)]
 pub struct LabelledCostMap {
     map: CostMap,
-    /// Per padded cell: index into the sources, or `u32::MAX`.
+    /// Per cell of the window: index into the sources, or `u32::MAX`.
     labels: Vec<u32>,
 }
 
@@ -322,7 +386,10 @@ impl LabelledCostMap {
         if !self.map.frame.contains(cell) {
             return None;
         }
-        let label = self.labels[padded_index(&self.map.frame, cell)];
+        let label = match self.map.window.index(cell).map(|i| self.labels[i]) {
+            Some(label) if label != u32::MAX => label,
+            _ => self.map.stranded.iter().find(|(s, _)| *s == cell).map_or(u32::MAX, |(_, k)| *k),
+        };
         (label != u32::MAX).then_some(label as usize)
     }
 }
@@ -333,8 +400,8 @@ impl LabelledCostMap {
 pub fn labelled_cost_map(traversal: &TraversalMap, sources: &[Cell]) -> LabelledCostMap {
     let mut labels = vec![u32::MAX; traversal.padded.len()];
     for (k, s) in sources.iter().enumerate() {
-        if traversal.frame.contains(*s) {
-            labels[padded_index(&traversal.frame, *s)] = k as u32;
+        if let Some(i) = traversal.window.start_index(*s).filter(|_| traversal.frame.contains(*s)) {
+            labels[i] = k as u32;
         }
     }
     let map = settle_from(traversal, sources, Corners::Keep, &mut labels);
@@ -344,15 +411,26 @@ pub fn labelled_cost_map(traversal: &TraversalMap, sources: &[Cell]) -> Labelled
 /// Runs the search; `labels`, when not empty, follow the improvements.
 fn settle_from(traversal: &TraversalMap, sources: &[Cell], corners: Corners, labels: &mut [u32]) -> CostMap {
     let frame = traversal.frame;
+    let window = traversal.window;
     let mut cost = vec![f32::INFINITY; traversal.padded.len()];
-    let starts: Vec<usize> = sources.iter().filter(|s| frame.contains(**s)).map(|&s| padded_index(&frame, s)).collect();
-    for &i in &starts {
-        cost[i] = 0.0;
+    let mut starts = Vec::new();
+    let mut stranded: Vec<(Cell, u32)> = Vec::new();
+    for (k, &s) in sources.iter().enumerate().filter(|(_, s)| frame.contains(**s)) {
+        match window.start_index(s) {
+            Some(i) => {
+                cost[i] = 0.0;
+                starts.push(i);
+            }
+            None => match stranded.iter_mut().find(|(c, _)| *c == s) {
+                Some(seen) => seen.1 = k as u32,
+                None => stranded.push((s, k as u32)),
+            },
+        }
     }
     let (min_step, max_step) = traversal.step_range;
     let orthogonal = frame.resolution as f32;
     let diagonal = (frame.resolution * std::f64::consts::SQRT_2) as f32;
-    let stride = frame.width as usize + 2;
+    let stride = window.stride;
     let uniform = min_step == max_step;
     let cut = corners == Corners::Cut;
     let weighted = Weighted { costs: &traversal.padded, bits: &traversal.passable_bits, stride, orthogonal, diagonal };
@@ -369,7 +447,7 @@ fn settle_from(traversal: &TraversalMap, sources: &[Cell], corners: Corners, lab
         (false, true) => settle::<_, true>(&weighted, &mut cost, labels, &starts, bounds),
         (false, false) => settle::<_, false>(&weighted, &mut cost, labels, &starts, bounds),
     }
-    CostMap { frame, cost }
+    CostMap { frame, window, cost, stranded }
 }
 
 /// Whether bit `i` is set.
@@ -461,14 +539,16 @@ fn settle<N: Neighbourhood, const CUT: bool>(
     } else {
         usize::MAX
     };
-    if ring <= 4096 {
-        buckets::<N, CUT>(n, cost, labels, starts, width, ring);
+    if ring <= 4096 && labels.is_empty() {
+        buckets::<N, CUT, false>(n, cost, labels, starts, width, ring);
+    } else if ring <= 4096 {
+        buckets::<N, CUT, true>(n, cost, labels, starts, width, ring);
     } else {
         heap::<N, CUT>(n, cost, labels, starts);
     }
 }
 
-fn buckets<N: Neighbourhood, const CUT: bool>(
+fn buckets<N: Neighbourhood, const CUT: bool, const LABELLED: bool>(
     n: &N,
     cost: &mut [f32],
     labels: &mut [u32],
@@ -476,7 +556,6 @@ fn buckets<N: Neighbourhood, const CUT: bool>(
     width: f32,
     ring: usize,
 ) {
-    let labelled = !labels.is_empty();
     // A power-of-two ring turns the bucket's slot into a mask.
     let ring = ring.next_power_of_two();
     let slot_mask = ring - 1;
@@ -504,7 +583,7 @@ fn buckets<N: Neighbourhood, const CUT: bool>(
                 n.neighbours::<CUT>(i, here, |j, c| {
                     if c < cost[j] {
                         cost[j] = c;
-                        if labelled {
+                        if LABELLED {
                             labels[j] = labels[i];
                         }
                         rings[(c * per_bucket) as usize & slot_mask].push(j as u32);
@@ -812,12 +891,15 @@ mod tests {
             let corners = if cut { Corners::Cut } else { Corners::Keep };
             let fast = cost_map_with(&t, &[source], corners);
             let mut slow = vec![f32::INFINITY; t.padded.len()];
-            let start = padded_index(&frame, source);
+            let Some(start) = t.window.start_index(source) else {
+                proptest::prop_assert!(fast.cost(source) == Some(0.0) && fast.reachable_cells() == 1);
+                return Ok(());
+            };
             slow[start] = 0.0;
             let n = Weighted {
                 costs: &t.padded,
                 bits: &t.passable_bits,
-                stride: width as usize + 2,
+                stride: t.window.stride,
                 orthogonal: 0.25,
                 diagonal: (0.25 * std::f64::consts::SQRT_2) as f32,
             };
@@ -828,11 +910,57 @@ mod tests {
             }
             for cell in frame.bounds().cells() {
                 let a = fast.cost(cell);
-                let b = slow[padded_index(&frame, cell)];
+                let b = t.window.index(cell).map_or(f32::INFINITY, |i| slow[i]);
                 match a {
                     Some(a) => proptest::prop_assert!((a - f64::from(b)).abs() < 1e-4, "{:?}: {} vs {}", cell, a, b),
                     None => proptest::prop_assert!(!b.is_finite()),
                 }
+            }
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(crate::testing::seeded_proptest(256))]
+        /// A search confined to the window around the passable cells finds
+        /// what A* over the whole grid finds, from any source: inside the
+        /// known part, beside it, or far from it.
+        #[test]
+        fn the_window_loses_no_path(
+            width in 1u32..20,
+            height in 1u32..20,
+            seed in 0u64..1_000_000,
+            blocked_per_mille in 0u64..400,
+        ) {
+            let frame = GridFrame::new(0.25, crate::math::Point2::origin(), width, height);
+            let mut rng = crate::rng::SplitMix64::new(seed);
+            let mut corner = |n: u32| (rng.below(u64::from(n)) as i32, rng.below(u64::from(n)) as i32);
+            let ((x0, x1), (y0, y1)) = (corner(width), corner(height));
+            let known = |c: Cell| (x0.min(x1)..=x0.max(x1)).contains(&c.x) && (y0.min(y1)..=y0.max(y1)).contains(&c.y);
+            let cells: Vec<u8> = (0..frame.len())
+                .map(|i| match (known(frame.cell(i)), rng.below(1000) < blocked_per_mille) {
+                    (false, _) => UNKNOWN,
+                    (true, true) => 100,
+                    (true, false) => 0,
+                })
+                .collect();
+            let grid = OccupancyGrid::from_cells(frame, cells);
+            let t = TraversalMap::free_space(&grid, 0.0);
+            let source = Cell::new(rng.below(u64::from(width)) as i32, rng.below(u64::from(height)) as i32);
+            let map = cost_map(&t, &[source]);
+            let labelled = labelled_cost_map(&t, &[Cell::new(-1, 0), source]);
+            for goal in frame.bounds().cells() {
+                let path = shortest_path(&frame, source, goal, |c| t.passable(c));
+                // A* never ends on an impassable cell; a search starts on any.
+                let expected = if goal == source {
+                    Some(0.0)
+                } else {
+                    path.map(|p| p.windows(2).map(|w| w[0].distance(w[1])).sum::<f64>() * 0.25)
+                };
+                match (map.cost(goal), expected) {
+                    (Some(a), Some(b)) => proptest::prop_assert!((a - b).abs() < 1e-4, "{:?}: {} vs {}", goal, a, b),
+                    (a, b) => proptest::prop_assert_eq!(a.is_some(), b.is_some(), "{:?}", goal),
+                }
+                proptest::prop_assert_eq!(labelled.source_of(goal), map.cost(goal).map(|_| 1), "{:?}", goal);
             }
         }
     }
