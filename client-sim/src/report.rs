@@ -214,9 +214,15 @@ pub fn write_report(experiments: &[(Experiment, std::path::PathBuf)], out: &Path
          unless stated: 15 cm cells, 360° sensors of 4 m, interference (a move near another robot within 1 m \
          succeeds with probability 0.7), the team packed one robot per cell around one random start, time in simulated seconds. Figures are means over seeds with \
          95 % confidence intervals; \"significant\" is the paired t-test over seeds at 5 % (a seed gives every \
-         policy the same world and start), or Welch's t-test where runs share no seeds. An experiment whose notes \
-         begin \"Not yet re-run\" was made with an earlier simulator; its notes say how it differed.\n"
+         policy the same world and start), or Welch's t-test where runs share no seeds.\n"
     );
+    if experiments.iter().any(|(e, _)| e.notes.trim_start_matches('*').starts_with("Not yet re-run")) {
+        let _ = writeln!(
+            md,
+            "An experiment whose notes begin \"Not yet re-run\" was made with an earlier simulator; its notes say \
+             how it differed.\n"
+        );
+    }
     for (experiment, dir) in experiments {
         let rows = read_runs(dir)?;
         let ok = rows.iter().filter(|r| r.get("status").map(String::as_str) == Some("ok")).count();
