@@ -21,10 +21,10 @@ use crate::grid::{Cell, CellClass, GridFrame, NEIGHBOURS_8, OccupancyGrid, UNKNO
 
 /// What entering each cell costs, per metre; `f32::INFINITY` where impassable.
 ///
-/// Stored over a [`Window`]: the bounding box of the passable cells with a
-/// one-cell impassable border, so that the cost-map loops need no bounds
-/// checks and a search over a partly explored map touches only the part
-/// that is known.
+/// Stored over a [`Window`]: the bounding box of the passable cells with an
+/// impassable border two cells wide, so that the cost-map loops need no
+/// bounds checks and a search over a partly explored map touches only the
+/// part that is known.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TraversalMap {
     frame: GridFrame,
