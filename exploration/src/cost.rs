@@ -76,8 +76,9 @@ impl Window {
     /// The index of `cell`, if the window holds it.
     #[inline]
     fn index(&self, cell: Cell) -> Option<usize> {
-        let x = usize::try_from(cell.x - self.corner.x).ok().filter(|&x| x < self.stride)?;
-        let y = usize::try_from(cell.y - self.corner.y).ok().filter(|&y| y < self.rows)?;
+        // In i64: any cell a caller passes, however far off the grid.
+        let x = usize::try_from(i64::from(cell.x) - i64::from(self.corner.x)).ok().filter(|&x| x < self.stride)?;
+        let y = usize::try_from(i64::from(cell.y) - i64::from(self.corner.y)).ok().filter(|&y| y < self.rows)?;
         Some(y * self.stride + x)
     }
 
@@ -982,6 +983,19 @@ mod tests {
         for cell in grid.frame().bounds().cells() {
             assert_eq!(labelled.map().cost(cell), plain.cost(cell));
         }
+    }
+
+    #[test]
+    fn cells_far_off_the_grid_are_neither_passable_nor_reached() {
+        let grid = grid_from_picture(&["....", "...."]);
+        let t = TraversalMap::free_space(&grid, 0.0);
+        let map = cost_map(&t, &[Cell::new(0, 0)]);
+        for cell in [Cell::new(i32::MIN, 0), Cell::new(i32::MAX, i32::MAX), Cell::new(-3, 1), Cell::new(1, i32::MIN)] {
+            assert!(!t.passable(cell), "{cell:?}");
+            assert_eq!(t.cost_per_metre(cell), f32::INFINITY, "{cell:?}");
+            assert_eq!(map.cost(cell), None, "{cell:?}");
+        }
+        assert_eq!(cost_map(&t, &[Cell::new(i32::MIN, i32::MIN)]).reachable_cells(), 0);
     }
 
     #[test]
