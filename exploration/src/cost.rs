@@ -400,16 +400,12 @@ impl LabelledCostMap {
 /// Complexity: as [`cost_map_with`], one search whatever the number of sources.
 pub fn labelled_cost_map(traversal: &TraversalMap, sources: &[Cell]) -> LabelledCostMap {
     let mut labels = vec![u32::MAX; traversal.padded.len()];
-    for (k, s) in sources.iter().enumerate() {
-        if let Some(i) = traversal.window.start_index(*s).filter(|_| traversal.frame.contains(*s)) {
-            labels[i] = k as u32;
-        }
-    }
     let map = settle_from(traversal, sources, Corners::Keep, &mut labels);
     LabelledCostMap { map, labels }
 }
 
-/// Runs the search; `labels`, when not empty, follow the improvements.
+/// Runs the search; `labels`, when not empty, start as each source's index
+/// (the last where a cell is listed twice) and follow the improvements.
 fn settle_from(traversal: &TraversalMap, sources: &[Cell], corners: Corners, labels: &mut [u32]) -> CostMap {
     let frame = traversal.frame;
     let window = traversal.window;
@@ -420,6 +416,9 @@ fn settle_from(traversal: &TraversalMap, sources: &[Cell], corners: Corners, lab
         match window.start_index(s) {
             Some(i) => {
                 cost[i] = 0.0;
+                if !labels.is_empty() {
+                    labels[i] = k as u32;
+                }
                 starts.push(i);
             }
             None => match stranded.iter_mut().find(|(c, _)| *c == s) {
