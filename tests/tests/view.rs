@@ -3,12 +3,14 @@
 //! changed, and a person opening the page in a real browser (Chromium,
 //! headless) sees the fleet explore.
 
+mod browser;
 mod common;
 
 use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Duration;
 
+use browser::Browser;
 use common::TestExecutive;
 use exploration_proto::Bearer;
 use exploration_proto::v1 as pb;
@@ -183,58 +185,19 @@ async fn the_stream_sends_the_whole_map_first_then_only_the_cells_that_changed()
     exec.stop().await;
 }
 
-/// Chromium from `CHROMIUM`, or Debian's `chromium` on the path.
-fn chromium() -> Option<PathBuf> {
-    if let Some(path) = std::env::var_os("CHROMIUM") {
-        return Some(PathBuf::from(path));
-    }
-    std::env::var_os("PATH").and_then(|paths| {
-        std::env::split_paths(&paths)
-            .flat_map(|dir| ["chromium", "chromium-browser"].map(|name| dir.join(name)))
-            .find(|p| p.is_file())
-    })
-}
-
-/// Loads `url` in headless Chromium: a screenshot to `png`, and the page's
-/// DOM. Each is a fresh page load, and headless Chromium may stop a load
-/// before the first server-sent event has arrived (its page time runs
-/// ahead of the network), so a load that shows no update yet is repeated,
-/// a few times at most; the DOM returned is the first that shows one, and
-/// the screenshot the first taken after it whose canvas shows a robot.
-async fn browse(chromium: &Path, url: &str, png: &Path, profile: &Path) -> String {
-    let run = |what: String| {
-        let mut command = std::process::Command::new(chromium);
-        command.args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--hide-scrollbars",
-            "--window-size=1280,800",
-            "--virtual-time-budget=8000",
-        ]);
-        command.arg(format!("--user-data-dir={}", profile.display()));
-        command.arg(what).arg(url);
-        command
-    };
-    let output = |mut command: std::process::Command| async move {
-        let out = tokio::task::spawn_blocking(move || command.output().expect("Chromium runs")).await.unwrap();
-        assert!(out.status.success(), "Chromium failed: {}", String::from_utf8_lossy(&out.stderr));
-        String::from_utf8_lossy(&out.stdout).into_owned()
-    };
-    let mut dom = String::new();
-    for _ in 0..6 {
-        dom = output(run("--dump-dom".to_owned())).await;
-        if dom.contains(" updates<") {
-            break;
+/// Screenshots of the live page until `done` holds for one; false if
+/// none did within 30 s. The page draws on animation frames after each
+/// event, so the picture can trail the stream by a frame or two.
+fn screenshot_until(browser: &mut Browser, png: &Path, done: impl Fn(&[[u8; 3]]) -> bool) -> bool {
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    while std::time::Instant::now() < deadline {
+        browser.screenshot(png);
+        if done(&canvas_pixels(png)) {
+            return true;
         }
+        std::thread::sleep(Duration::from_millis(200));
     }
-    for _ in 0..6 {
-        output(run(format!("--screenshot={}", png.display()))).await;
-        if canvas_pixels(png).contains(&EXPLORING_ROBOT_RGB) {
-            break;
-        }
-    }
-    dom
+    false
 }
 
 /// The mission's known cells, from the executive.
@@ -275,7 +238,7 @@ fn canvas_pixels(png: &Path) -> Vec<[u8; 3]> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_person_opening_the_page_sees_the_fleet_explore() {
-    let Some(chromium) = chromium() else {
+    let Some(chromium) = browser::find_chromium() else {
         eprintln!("SKIPPED: no Chromium to load the page in (install Debian's chromium, or set CHROMIUM)");
         return;
     };
@@ -295,7 +258,19 @@ async fn a_person_opening_the_page_sees_the_fleet_explore() {
     std::fs::create_dir_all(&artefacts).unwrap();
     let (before, after) = (artefacts.join("fleet-before.png"), artefacts.join("fleet-after.png"));
     let known = until_known_beyond(&mut missions, 6_000).await;
-    let dom = browse(&chromium, &url, &before, &dir.path().join("profile")).await;
+
+    // A person opens the page and waits until it says it is live.
+    let (mut browser, dom) = tokio::task::block_in_place(|| {
+        let mut browser = Browser::launch(&chromium, &dir.path().join("profile"));
+        browser.open(&url);
+        let live = "document.getElementById('status').textContent.includes(' updates') \
+                    && ['robot-0', 'robot-1', 'robot-2'].every((r) => document.body.innerText.includes(r))";
+        let status = "document.getElementById('status').textContent";
+        let became_live = browser.wait_for(live, Duration::from_secs(60));
+        assert!(became_live, "the page went live and named the fleet; it says {}", browser.evaluate(status));
+        let dom = browser.evaluate("document.documentElement.outerHTML").as_str().unwrap_or_default().to_owned();
+        (browser, dom)
+    });
     for robot in ["robot-0", "robot-1", "robot-2"] {
         assert!(dom.contains(robot), "{robot} is named on the page");
     }
@@ -303,15 +278,20 @@ async fn a_person_opening_the_page_sees_the_fleet_explore() {
     let percent: f64 = coverage.trim_end_matches('%').trim().parse().unwrap_or(0.0);
     assert!(percent > 0.0, "the coverage figure is shown: {coverage:?}");
 
+    tokio::task::block_in_place(|| {
+        screenshot_until(&mut browser, &before, |pixels| pixels.contains(&EXPLORING_ROBOT_RGB));
+    });
     let pixels = canvas_pixels(&before);
     for (colour, what) in [(FREE_RGB, "free space"), (WALL_RGB, "walls"), (EXPLORING_ROBOT_RGB, "exploring robots")] {
         let count = pixels.iter().filter(|p| **p == colour).count();
         assert!(count > 10, "the map shows {what} ({count} pixels of {colour:?}); screenshot {}", before.display());
     }
 
+    // The same page, left open while the fleet maps 3 000 more cells.
     until_known_beyond(&mut missions, known + 3_000).await;
-    browse(&chromium, &url, &after, &dir.path().join("profile")).await;
-    let changed = canvas_pixels(&after).iter().zip(&pixels).filter(|(a, b)| a != b).count();
+    let differs = |now: &[[u8; 3]]| now.iter().zip(&pixels).filter(|(a, b)| a != b).count();
+    tokio::task::block_in_place(|| screenshot_until(&mut browser, &after, |now| differs(now) > 1_000));
+    let changed = differs(&canvas_pixels(&after));
     assert!(changed > 1_000, "the picture changed as the fleet moved ({changed} pixels); {}", after.display());
     eprintln!("screenshots: {} and {}", before.display(), after.display());
 
