@@ -7,12 +7,17 @@ It stands on a free cell of the map, sees what a 360° range sensor would
 (ray casting on the true map), sends what it saw as a map patch, and drives
 one cell per step along a breadth-first path over the cells it knows to be
 free towards the target the executive gives it, until the mission is done.
+With nothing to do it waits on its assignment stream for the next task, as
+a real robot would, instead of spending steps asking for it.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import queue
+import threading
+import time
 from collections import deque
 
 import numpy as np
@@ -59,6 +64,20 @@ def path(known_free: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) 
     return None
 
 
+def wait_for_another_task(assignments: queue.Queue[pb.Assignment], task: int, patience_s: float = 1.0) -> None:
+    """Waits (at most ``patience_s``) until the stream brings a task other
+    than ``task``, or the end of the mission. The executive plans off the
+    request path, so an arrival's next task comes a planning later."""
+    deadline = time.monotonic() + patience_s
+    while (left := deadline - time.monotonic()) > 0:
+        try:
+            assignment = assignments.get(timeout=left)
+        except queue.Empty:
+            return
+        if assignment.task_id != task or assignment.mission_state == pb.MISSION_STATE_COMPLETED:
+            return
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--server", default="127.0.0.1:50051")
@@ -78,6 +97,8 @@ def main() -> None:
     executive = Executive(args.server, args.token)
     mission = executive.create_mission("robot.py", truth, policy=args.policy)
     robot = executive.register_robot(mission.id, "py-robot", truth.world(x, y) + (0.0,), sensor_range_m=args.sensor_range)
+    assignments: queue.Queue[pb.Assignment] = queue.Queue()
+    threading.Thread(target=lambda: [assignments.put(a) for a in robot.assignments()], daemon=True).start()
     known_free = np.zeros(truth.cells.shape, dtype=bool)
     range_cells = int(args.sensor_range / truth.resolution)
     route: list[tuple[int, int]] = []
@@ -101,6 +122,7 @@ def main() -> None:
             robot.heartbeat(truth.world(x, y) + (0.0,), "arrived" if not route else "moving", task_id=task)
         else:
             robot.heartbeat(pose, "idle")
+            wait_for_another_task(assignments, task)
     mission = executive.mission(mission.id)
     known = 100.0 * mission.known_cells / (truth.width * truth.height)
     state = pb.MissionState.Name(mission.state)
