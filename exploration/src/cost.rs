@@ -19,6 +19,9 @@ use std::sync::Arc;
 
 use crate::grid::{Cell, CellClass, GridFrame, NEIGHBOURS_8, OccupancyGrid, UNKNOWN, classify};
 
+mod growing;
+pub use growing::GrowingCostMap;
+
 /// What entering each cell costs, per metre; `f32::INFINITY` where impassable.
 ///
 /// Stored over a [`Window`]: the bounding box of the passable cells with an
@@ -427,27 +430,50 @@ fn settle_from(traversal: &TraversalMap, sources: &[Cell], corners: Corners, lab
             },
         }
     }
-    let (min_step, max_step) = traversal.step_range;
-    let orthogonal = frame.resolution as f32;
-    let diagonal = (frame.resolution * std::f64::consts::SQRT_2) as f32;
-    let stride = window.stride;
-    let uniform = min_step == max_step;
-    let cut = corners == Corners::Cut;
-    let weighted = Weighted { costs: &traversal.padded, bits: &traversal.passable_bits, stride, orthogonal, diagonal };
-    let constant = Uniform {
-        bits: &traversal.passable_bits,
-        stride,
-        orthogonal: orthogonal * min_step,
-        diagonal: diagonal * min_step,
-    };
-    let bounds = (min_step * orthogonal, max_step * diagonal);
-    match (uniform, cut) {
-        (true, true) => settle::<_, true>(&constant, &mut cost, labels, &starts, bounds),
-        (true, false) => settle::<_, false>(&constant, &mut cost, labels, &starts, bounds),
-        (false, true) => settle::<_, true>(&weighted, &mut cost, labels, &starts, bounds),
-        (false, false) => settle::<_, false>(&weighted, &mut cost, labels, &starts, bounds),
+    let bounds = traversal.step_bounds();
+    match (traversal.is_uniform(), corners == Corners::Cut) {
+        (true, true) => settle::<_, true>(&traversal.uniform(), &mut cost, labels, &starts, bounds),
+        (true, false) => settle::<_, false>(&traversal.uniform(), &mut cost, labels, &starts, bounds),
+        (false, true) => settle::<_, true>(&traversal.weighted(), &mut cost, labels, &starts, bounds),
+        (false, false) => settle::<_, false>(&traversal.weighted(), &mut cost, labels, &starts, bounds),
     }
     CostMap { frame, window, cost, stranded }
+}
+
+impl TraversalMap {
+    /// Whether every passable cell costs the same per metre.
+    fn is_uniform(&self) -> bool {
+        self.step_range.0 == self.step_range.1
+    }
+
+    /// The cheapest and the dearest single step.
+    fn step_bounds(&self) -> (f32, f32) {
+        let (orthogonal, diagonal) = self.step_lengths();
+        (self.step_range.0 * orthogonal, self.step_range.1 * diagonal)
+    }
+
+    /// An orthogonal and a diagonal step, in metres.
+    fn step_lengths(&self) -> (f32, f32) {
+        let resolution = self.frame.resolution;
+        (resolution as f32, (resolution * std::f64::consts::SQRT_2) as f32)
+    }
+
+    fn weighted(&self) -> Weighted<'_> {
+        let (orthogonal, diagonal) = self.step_lengths();
+        Weighted { costs: &self.padded, bits: &self.passable_bits, stride: self.window.stride, orthogonal, diagonal }
+    }
+
+    /// Only meaningful when [`Self::is_uniform`].
+    fn uniform(&self) -> Uniform<'_> {
+        let (orthogonal, diagonal) = self.step_lengths();
+        let per_metre = self.step_range.0;
+        Uniform {
+            bits: &self.passable_bits,
+            stride: self.window.stride,
+            orthogonal: orthogonal * per_metre,
+            diagonal: diagonal * per_metre,
+        }
+    }
 }
 
 /// Whether bit `i` is set.
@@ -531,69 +557,111 @@ fn settle<N: Neighbourhood, const CUT: bool>(
     starts: &[usize],
     steps: (f32, f32),
 ) {
-    // Slightly narrower than the cheapest step, so rounding never puts a
-    // relaxed cell into the bucket being drained.
-    let width = steps.0 * (1.0 - 1e-5);
-    let ring = if width > 0.0 && width.is_finite() {
-        ((steps.1 / width).ceil() as usize).saturating_add(2)
-    } else {
-        usize::MAX
-    };
-    if ring <= 4096 && labels.is_empty() {
-        buckets::<N, CUT, false>(n, cost, labels, starts, width, ring);
-    } else if ring <= 4096 {
-        buckets::<N, CUT, true>(n, cost, labels, starts, width, ring);
-    } else {
-        heap::<N, CUT>(n, cost, labels, starts);
+    match Buckets::fitting(starts, steps) {
+        Some(mut b) if labels.is_empty() => b.drain::<N, CUT, false>(n, cost, labels, usize::MAX),
+        Some(mut b) => b.drain::<N, CUT, true>(n, cost, labels, usize::MAX),
+        None => heap::<N, CUT>(n, cost, labels, starts),
     }
 }
 
-fn buckets<N: Neighbourhood, const CUT: bool, const LABELLED: bool>(
-    n: &N,
-    cost: &mut [f32],
-    labels: &mut [u32],
-    starts: &[usize],
-    width: f32,
-    ring: usize,
-) {
-    // A power-of-two ring turns the bucket's slot into a mask.
-    let ring = ring.next_power_of_two();
-    let slot_mask = ring - 1;
-    let per_bucket = 1.0 / width;
-    let mut rings: Vec<Vec<u32>> = vec![Vec::new(); ring];
-    let mut pending = 0usize;
-    for &i in starts {
-        rings[0].push(i as u32);
-        pending += 1;
-    }
-    let mut current = 0usize;
-    let mut batch = Vec::new();
-    while pending > 0 {
-        let slot = current & slot_mask;
-        while !rings[slot].is_empty() {
-            std::mem::swap(&mut batch, &mut rings[slot]);
-            pending -= batch.len();
-            for &i in &batch {
-                let i = i as usize;
-                let here = cost[i];
-                // Stale entry: the cell was improved into an earlier bucket.
-                if (here * per_bucket) as usize != current {
-                    continue;
-                }
-                n.neighbours::<CUT>(i, here, |j, c| {
-                    if c < cost[j] {
-                        cost[j] = c;
-                        if LABELLED {
-                            labels[j] = labels[i];
-                        }
-                        rings[(c * per_bucket) as usize & slot_mask].push(j as u32);
-                        pending += 1;
-                    }
-                });
-            }
-            batch.clear();
+/// A ring of buckets as wide as the cheapest step (Dial 1969), kept between
+/// drains so that a search can stop at a radius and resume later (see
+/// [`GrowingCostMap`]).
+#[derive(Debug)]
+struct Buckets {
+    rings: Vec<Vec<u32>>,
+    slot_mask: usize,
+    per_bucket: f32,
+    /// The bucket being drained: every cell of a lower bucket is settled.
+    current: usize,
+    pending: usize,
+    batch: Vec<u32>,
+}
+
+impl Buckets {
+    /// Buckets for steps between `steps.0` and `steps.1`, when a ring of at
+    /// most 4 096 holds that range.
+    fn fitting(starts: &[usize], steps: (f32, f32)) -> Option<Self> {
+        // Slightly narrower than the cheapest step, so rounding never puts a
+        // relaxed cell into the bucket being drained.
+        let width = steps.0 * (1.0 - 1e-5);
+        if !(width > 0.0 && width.is_finite()) {
+            return None;
         }
-        current += 1;
+        let ring = ((steps.1 / width).ceil() as usize).saturating_add(2);
+        (ring <= 4096).then(|| Self::new(starts, width, ring))
+    }
+
+    fn new(starts: &[usize], width: f32, ring: usize) -> Self {
+        // A power-of-two ring turns the bucket's slot into a mask.
+        let ring = ring.next_power_of_two();
+        let mut rings: Vec<Vec<u32>> = vec![Vec::new(); ring];
+        rings[0].extend(starts.iter().map(|&i| i as u32));
+        Self {
+            rings,
+            slot_mask: ring - 1,
+            per_bucket: 1.0 / width,
+            current: 0,
+            pending: starts.len(),
+            batch: Vec::new(),
+        }
+    }
+
+    /// Whether every reachable cell is settled.
+    fn exhausted(&self) -> bool {
+        self.pending == 0
+    }
+
+    /// Every cell cheaper than this is settled, and every cell not yet
+    /// settled costs at least this. One bucket short of the bucket being
+    /// drained, so that rounding a cost to its bucket cannot break either.
+    fn radius(&self) -> f32 {
+        if self.exhausted() { f32::INFINITY } else { self.current.saturating_sub(1) as f32 / self.per_bucket }
+    }
+
+    /// The first bucket not to drain for [`Self::radius`] to reach `radius`.
+    fn end_for(&self, radius: f32) -> usize {
+        let buckets = (radius * self.per_bucket).ceil();
+        if buckets.is_finite() && buckets < (usize::MAX / 2) as f32 { buckets as usize + 1 } else { usize::MAX }
+    }
+
+    /// Settles the buckets before `end` (all of them for `usize::MAX`).
+    fn drain<N: Neighbourhood, const CUT: bool, const LABELLED: bool>(
+        &mut self,
+        n: &N,
+        cost: &mut [f32],
+        labels: &mut [u32],
+        end: usize,
+    ) {
+        let Self { rings, slot_mask, per_bucket, current, pending, batch } = self;
+        let (slot_mask, per_bucket) = (*slot_mask, *per_bucket);
+        while *pending > 0 && *current < end {
+            let slot = *current & slot_mask;
+            while !rings[slot].is_empty() {
+                std::mem::swap(batch, &mut rings[slot]);
+                *pending -= batch.len();
+                for &i in batch.iter() {
+                    let i = i as usize;
+                    let here = cost[i];
+                    // Stale entry: the cell was improved into an earlier bucket.
+                    if (here * per_bucket) as usize != *current {
+                        continue;
+                    }
+                    n.neighbours::<CUT>(i, here, |j, c| {
+                        if c < cost[j] {
+                            cost[j] = c;
+                            if LABELLED {
+                                labels[j] = labels[i];
+                            }
+                            rings[(c * per_bucket) as usize & slot_mask].push(j as u32);
+                            *pending += 1;
+                        }
+                    });
+                }
+                batch.clear();
+            }
+            *current += 1;
+        }
     }
 }
 

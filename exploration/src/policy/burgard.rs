@@ -15,8 +15,10 @@
 //! grid resolution (at the paper's 15 cm cells, V in cells is V/0.15).
 
 use super::registry::{BETA, MIN_FRONTIER_SIZE, OCC_MAX, PolicyDescriptor, SMOOTHING, SWITCH_UTILITY};
-use super::{Plan, PlanningInput, Policy, Target, current_target, robot_cost_maps};
-use crate::cost::{CostCache, TraversalKind};
+use std::sync::Arc;
+
+use super::{Plan, PlanningInput, Policy, RobotView, Target, current_target, robot_cost_maps};
+use crate::cost::{CostCache, GrowingCostMap, TraversalKind, TraversalMap};
 use crate::grid::{Cell, CellClass, OccupancyGrid};
 use crate::visibility::line_of_sight;
 
@@ -69,6 +71,11 @@ pub(super) fn covered(grid: &OccupancyGrid, a: Cell, b: Cell, max_range_m: f64) 
 }
 
 impl Burgard {
+    /// §II-A's traversal for a robot's footprint.
+    fn traversal_kind(&self, robot: &RobotView) -> TraversalKind {
+        TraversalKind::burgard(self.occ_max, self.smoothing_sigma_m, robot.capabilities.footprint_radius_m)
+    }
+
     /// Line 2 of Algorithm 1: V_t^i for every robot i and frontier cell t.
     pub(super) fn cost_values(
         &self,
@@ -76,11 +83,7 @@ impl Burgard {
         costs: &mut CostCache<'_>,
         frontier: &[Cell],
     ) -> Vec<Vec<Option<f64>>> {
-        let kinds: Vec<TraversalKind> = input
-            .robots
-            .iter()
-            .map(|r| TraversalKind::burgard(self.occ_max, self.smoothing_sigma_m, r.capabilities.footprint_radius_m))
-            .collect();
+        let kinds: Vec<TraversalKind> = input.robots.iter().map(|r| self.traversal_kind(r)).collect();
         robot_cost_maps(input, costs, &kinds)
             .iter()
             .zip(input.robots)
@@ -95,6 +98,11 @@ impl Burgard {
         frontier: &[Cell],
         values: &[Vec<Option<f64>>],
     ) -> Vec<Option<Target>> {
+        self.select(input, frontier, &mut Computed(values))
+    }
+
+    /// Lines 3–7 of Algorithm 1, reading V_t^i from `values`.
+    fn select(&self, input: &PlanningInput<'_>, frontier: &[Cell], values: &mut impl Values) -> Vec<Option<Target>> {
         let grid = input.grid;
         let resolution = grid.frame().resolution;
         // Line 3: all utilities start at 1, less what the targets of robots
@@ -111,21 +119,9 @@ impl Burgard {
         let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
         // Line 4: while a robot is left without a target.
         loop {
-            let mut best: Option<(f64, usize, usize)> = None;
-            for (i, row) in values.iter().enumerate() {
-                if targets[i].is_some() {
-                    continue;
-                }
-                let current = current_target(&input.robots[i]);
-                for (t, v) in row.iter().enumerate() {
-                    let Some(v) = v else { continue };
-                    let keep = if Some(frontier[t]) == current { self.switch_margin } else { 0.0 };
-                    let score = utility[t] - self.beta * v + keep;
-                    // Strictly greater: ties go to the lower robot, then the lower cell.
-                    if best.is_none_or(|(b, _, _)| score > b) {
-                        best = Some((score, i, t));
-                    }
-                }
+            let best = self.best_pair(input, frontier, values, &utility, &targets);
+            if self.search_further(input, values, &targets, best.map(|(score, _, _)| score)) {
+                continue;
             }
             // Robots that cannot reach any frontier cell stay without a target.
             let Some((score, i, t)) = best else { break };
@@ -133,7 +129,7 @@ impl Burgard {
             targets[i] = Some(Target {
                 cell: chosen,
                 utility: score,
-                path_cost: values[i][t].unwrap_or(0.0),
+                path_cost: values.row(i)[t].unwrap_or(0.0),
                 gain_region: None,
             });
             // Line 6, Eq. 1: discount what the chosen target's sensor would cover.
@@ -148,6 +144,171 @@ impl Burgard {
         }
         targets
     }
+
+    /// Line 5: the pair (robot without a target, frontier cell) with the
+    /// highest U_t − β·V_t^i among the values known so far.
+    fn best_pair(
+        &self,
+        input: &PlanningInput<'_>,
+        frontier: &[Cell],
+        values: &impl Values,
+        utility: &[f64],
+        targets: &[Option<Target>],
+    ) -> Option<(f64, usize, usize)> {
+        let mut best: Option<(f64, usize, usize)> = None;
+        for (i, robot) in input.robots.iter().enumerate() {
+            if targets[i].is_some() {
+                continue;
+            }
+            let current = current_target(robot);
+            for (t, v) in values.row(i).iter().enumerate() {
+                let Some(v) = v else { continue };
+                let keep = if Some(frontier[t]) == current { self.switch_margin } else { 0.0 };
+                let score = utility[t] - self.beta * v + keep;
+                // Strictly greater: ties go to the lower robot, then the lower cell.
+                if best.is_none_or(|(b, _, _)| score > b) {
+                    best = Some((score, i, t));
+                }
+            }
+        }
+        best
+    }
+
+    /// Whether some robot without a target may have a better pair than
+    /// `best` among the cells its search has not reached; if so, those
+    /// searches go further (and line 5 is to be evaluated again). A cell
+    /// beyond radius r costs more than r, so its score is below
+    /// 1 + margin − β·r (utilities never exceed 1): a search needs to pass
+    /// r = (1 + margin − best) / β, and without any pair yet, further.
+    fn search_further(
+        &self,
+        input: &PlanningInput<'_>,
+        values: &mut impl Values,
+        targets: &[Option<Target>],
+        best: Option<f64>,
+    ) -> bool {
+        let mut further = Vec::new();
+        for (i, robot) in input.robots.iter().enumerate() {
+            let radius = values.radius(i);
+            if targets[i].is_some() || radius == f64::INFINITY {
+                continue;
+            }
+            let margin = if robot.current.is_some() { self.switch_margin } else { 0.0 };
+            let needed = match best {
+                Some(best) if self.beta > 0.0 => (1.0 + margin - best) / self.beta,
+                Some(_) => f64::INFINITY,
+                // Nothing reached yet: widen by the distance at which cost
+                // outweighs a whole utility, doubling.
+                None => (2.0 * radius).max(1.0 / self.beta),
+            };
+            // At the radius itself a score could tie with `best`, and ties
+            // are broken by robot and cell: the search must pass it.
+            if radius <= needed {
+                // Half as far again: fewer, larger steps as line 5's best falls.
+                further.push((i, needed.max(1.5 * radius)));
+            }
+        }
+        values.grow(input.robots, &further, input.threads);
+        !further.is_empty()
+    }
+}
+
+/// Where Algorithm 1 reads V_t^i: per robot, a row over the frontier cells
+/// (`None` where unreachable, forbidden or not searched yet) and how far
+/// the robot's search has gone.
+trait Values {
+    fn row(&self, robot: usize) -> &[Option<f64>];
+    /// Every cell cheaper than this for the robot is in its row.
+    fn radius(&self, robot: usize) -> f64;
+    /// Takes each listed robot's search (index, radius) further, on up to
+    /// `threads` threads.
+    fn grow(&mut self, robots: &[RobotView], further: &[(usize, f64)], threads: usize);
+}
+
+/// Every robot's full cost map, computed beforehand.
+struct Computed<'a>(&'a [Vec<Option<f64>>]);
+
+impl Values for Computed<'_> {
+    fn row(&self, robot: usize) -> &[Option<f64>] {
+        &self.0[robot]
+    }
+
+    fn radius(&self, _: usize) -> f64 {
+        f64::INFINITY
+    }
+
+    fn grow(&mut self, _: &[RobotView], _: &[(usize, f64)], _: usize) {}
+}
+
+/// Each robot's search, taken only as far as line 5 needs: the same
+/// choices as [`Computed`], for the cells near the robots.
+struct Searched<'t> {
+    frontier: &'t [Cell],
+    /// Per robot, its search and its row.
+    searches: Vec<(GrowingCostMap<'t>, Vec<Option<f64>>)>,
+}
+
+impl<'t> Searched<'t> {
+    fn new(traversals: &'t [Arc<TraversalMap>], robots: &[RobotView], frontier: &'t [Cell]) -> Self {
+        let searches = robots
+            .iter()
+            .zip(traversals)
+            .map(|(r, t)| {
+                let map = GrowingCostMap::new(t, r.cell);
+                let mut row = vec![None; frontier.len()];
+                fill(&mut row, &map, r, frontier);
+                (map, row)
+            })
+            .collect();
+        Self { frontier, searches }
+    }
+}
+
+/// Fills in the row's cells that the search has reached since.
+fn fill(row: &mut [Option<f64>], map: &GrowingCostMap<'_>, robot: &RobotView, frontier: &[Cell]) {
+    for (v, &t) in row.iter_mut().zip(frontier) {
+        if v.is_none() && robot.may_target(t) {
+            *v = map.cost(t);
+        }
+    }
+}
+
+impl<'t> Values for Searched<'t> {
+    fn row(&self, robot: usize) -> &[Option<f64>] {
+        &self.searches[robot].1
+    }
+
+    fn radius(&self, robot: usize) -> f64 {
+        self.searches[robot].0.radius()
+    }
+
+    fn grow(&mut self, robots: &[RobotView], further: &[(usize, f64)], threads: usize) {
+        let frontier = self.frontier;
+        // Dealt round-robin: neighbours in the list tend to need alike.
+        let lanes = threads.clamp(1, further.len().max(1));
+        let mut work: Vec<Vec<_>> = (0..lanes).map(|_| Vec::new()).collect();
+        let mut wanted = further.iter().peekable();
+        for (i, (map, row)) in self.searches.iter_mut().enumerate() {
+            if let Some(&(_, radius)) = wanted.next_if(|(j, _)| *j == i) {
+                work[i % lanes].push((map, row, &robots[i], radius));
+            }
+        }
+        let run = |lane: Vec<(&mut GrowingCostMap<'t>, &mut Vec<Option<f64>>, &RobotView, f64)>| {
+            for (map, row, robot, radius) in lane {
+                map.grow_to(radius);
+                fill(row, map, robot, frontier);
+            }
+        };
+        if lanes == 1 {
+            work.into_iter().for_each(run);
+        } else {
+            std::thread::scope(|scope| {
+                for lane in work {
+                    scope.spawn(|| run(lane));
+                }
+            });
+        }
+    }
 }
 
 impl Policy for Burgard {
@@ -155,10 +316,14 @@ impl Policy for Burgard {
         NAME
     }
 
+    /// Searches only as far from each robot as line 5 can choose (see
+    /// [`Burgard::search_further`]): the plan of the full cost maps.
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
-        let values = self.cost_values(input, costs, &frontier);
-        Plan::of(self.assign(input, &frontier, &values))
+        let traversals: Vec<Arc<TraversalMap>> =
+            input.robots.iter().map(|r| costs.traversal(self.traversal_kind(r))).collect();
+        let mut values = Searched::new(&traversals, input.robots, &frontier);
+        Plan::of(self.select(input, &frontier, &mut values))
     }
 }
 
@@ -271,5 +436,79 @@ mod tests {
         ]);
         // In the open, (3,2) is 2 m from (1,2): U = 1 − (1 − 2/3) = 2/3.
         assert!((open - 2.0 / 3.0).abs() < 1e-9, "in the open: discounted, got {open}");
+    }
+
+    proptest::proptest! {
+        #![proptest_config(crate::testing::seeded_proptest(256))]
+        /// Searching only as far as line 5 needs gives the plan of the full
+        /// cost maps: the same targets, utilities and costs, with robots
+        /// holding current targets (hysteresis), cells excluded for them,
+        /// targets reserved by robots out of reach, any β.
+        #[test]
+        fn searching_as_far_as_needed_plans_as_the_full_search(
+            width in 4u32..28,
+            height in 4u32..28,
+            seed in 0u64..1_000_000,
+            robots in 1usize..6,
+            beta_tenths in 0u32..40,
+        ) {
+            use crate::frontier::{FrontierMap, clusters};
+            use crate::grid::{CellRect, GridFrame, OccupancyGrid};
+            use crate::policy::{CurrentTask, PlanningInput};
+            use crate::rng::SplitMix64;
+
+            let frame = GridFrame::new(0.5, crate::math::Point2::origin(), width, height);
+            let mut rng = SplitMix64::new(seed);
+            let mut grid = OccupancyGrid::unknown(frame);
+            // Known: a random rectangle, mostly free with smoothing-worthy walls.
+            let (x0, y0) = (rng.below(u64::from(width / 2)) as i32, rng.below(u64::from(height / 2)) as i32);
+            let (x1, y1) = (x0 + 2 + rng.below(u64::from(width) - x0 as u64 - 1) as i32, y0 + 2 + rng.below(u64::from(height) - y0 as u64 - 1) as i32);
+            let mut free = Vec::new();
+            for i in 0..frame.len() {
+                let c = frame.cell(i);
+                if (x0..x1).contains(&c.x) && (y0..y1).contains(&c.y) {
+                    let value = match rng.below(10) { 0 => 95, 1 => 40, _ => 5 + rng.below(20) as u8 };
+                    grid.set(c, value);
+                    if value <= 60 {
+                        free.push(c);
+                    }
+                }
+            }
+            proptest::prop_assume!(!free.is_empty());
+            let pick = |rng: &mut SplitMix64| free[rng.below(free.len() as u64) as usize];
+            let team: Vec<RobotView> = (0..robots as u64)
+                .map(|id| {
+                    let mut r = robot(id, pick(&mut rng), 0.5 + 3.0 * rng.next_f64());
+                    if rng.below(2) == 0 {
+                        r.current = Some(CurrentTask { target: pick(&mut rng), gain_region: None });
+                    }
+                    if rng.below(3) == 0 {
+                        let c = pick(&mut rng);
+                        r.excluded.push(CellRect::new(c.x - 1, c.y - 1, 3, 3));
+                    }
+                    r
+                })
+                .collect();
+            let reserved: Vec<(Cell, f64)> = (0..rng.below(3)).map(|_| (pick(&mut rng), 2.0)).collect();
+            let frontier_map = FrontierMap::detect(&grid);
+            let clusters = clusters(&frontier_map, 1);
+            let bids = vec![Vec::new(); robots];
+            let input = PlanningInput {
+                grid: &grid,
+                clusters: &clusters,
+                robots: &team,
+                threads: 1 + (seed % 3) as usize,
+                bids: &bids,
+                seed: 0,
+                reserved: &reserved,
+                rooms: None,
+            };
+            let policy = Burgard { beta: f64::from(beta_tenths) / 10.0, occ_max: 0.6, smoothing_sigma_m: 1.0, switch_margin: 0.3 };
+            let lazily = policy.plan(&input, &mut CostCache::new(&grid));
+            let frontier = input.frontier_cells();
+            let values = policy.cost_values(&input, &mut CostCache::new(&grid), &frontier);
+            let fully = Plan::of(policy.assign(&input, &frontier, &values));
+            proptest::prop_assert_eq!(lazily, fully);
+        }
     }
 }
