@@ -13,8 +13,10 @@
 //! shares the closest one.
 
 use super::registry::{MIN_FRONTIER_SIZE, PolicyDescriptor, SWITCH_METRES};
-use super::{Plan, PlanningInput, Policy, Target, current_target, free_space_cost_maps};
-use crate::cost::CostCache;
+use std::sync::Arc;
+
+use super::{Plan, PlanningInput, Policy, RobotView, Target, current_target};
+use crate::cost::{CostCache, GrowingCostMap, TraversalKind, TraversalMap, in_parallel};
 use crate::grid::Cell;
 
 pub(super) const NAME: &str = "unassigned";
@@ -28,8 +30,8 @@ pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
     build: |c| Box::new(Unassigned { switch_margin: c.get("switch_margin") }),
 };
 
-/// Wurm et al. 2008's baseline. Complexity: one cost map per robot, then
-/// O(n · f) for the choices.
+/// Wurm et al. 2008's baseline. Complexity: per robot, a search out to its
+/// choice (a whole cost map at worst), then O(n · f) for the choices.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Unassigned {
     /// Hysteresis: the current target wins unless another is closer by more than this, metres.
@@ -41,37 +43,86 @@ impl Policy for Unassigned {
         NAME
     }
 
+    /// Each robot's search goes only as far as its choice needs (see
+    /// [`Unassigned::choose`]): first on the planner's threads, as if no
+    /// cell were taken, then further where the choices of robots before it
+    /// took its cell.
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
-        let maps = free_space_cost_maps(input, costs);
+        let traversals: Vec<Arc<TraversalMap>> = input
+            .robots
+            .iter()
+            .map(|r| costs.traversal(TraversalKind::free_space(r.capabilities.footprint_radius_m)))
+            .collect();
+        let pairs: Vec<(&RobotView, &Arc<TraversalMap>)> = input.robots.iter().zip(&traversals).collect();
+        let mut searches = in_parallel(&pairs, input.threads, |(robot, traversal)| {
+            let mut search = GrowingCostMap::new(traversal, robot.cell);
+            self.choose(robot, &mut search, &frontier, &[]);
+            search
+        });
         let mut order: Vec<usize> = (0..input.robots.len()).collect();
         order.sort_by_key(|&i| input.robots[i].id);
         let mut taken: Vec<Cell> = Vec::new();
         let mut targets = vec![None; input.robots.len()];
         for i in order {
-            let robot = &input.robots[i];
-            let reachable: Vec<(Cell, f64)> =
-                frontier.iter().filter_map(|&cell| robot.cost_to(&maps[i], cell).map(|cost| (cell, cost))).collect();
+            let Some((cell, cost)) = self.choose(&input.robots[i], &mut searches[i], &frontier, &taken) else {
+                continue;
+            };
+            taken.push(cell);
+            targets[i] = Some(Target { cell, utility: -cost, path_cost: cost, gain_region: None });
+        }
+        Plan::of(targets)
+    }
+}
+
+impl Unassigned {
+    /// The robot's choice: the closest frontier cell not `taken`, or its
+    /// current target while that is free and not farther by more than the
+    /// margin; the closest taken one when every reachable cell is taken.
+    /// Searches further until the choice is sure: a cell the search has not
+    /// reached costs at least its radius.
+    fn choose(
+        &self,
+        robot: &RobotView,
+        search: &mut GrowingCostMap<'_>,
+        frontier: &[Cell],
+        taken: &[Cell],
+    ) -> Option<(Cell, f64)> {
+        // A robot's first look: about its own size, then doubling.
+        let mut radius = 1.0f64;
+        loop {
+            let reached: Vec<(Cell, f64)> =
+                frontier.iter().filter(|&&c| robot.may_target(c)).filter_map(|&c| Some((c, search.cost(c)?))).collect();
             // Ties go to the first cell in row-major order: deterministic.
             let closest = |free_only: bool| {
-                reachable
+                reached
                     .iter()
                     .copied()
                     .filter(|(cell, _)| !free_only || !taken.contains(cell))
                     .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.y.cmp(&b.0.y)).then(a.0.x.cmp(&b.0.x)))
             };
-            let Some(best) = closest(true).or_else(|| closest(false)) else { continue };
+            let best = closest(true);
+            let everything = search.radius() == f64::INFINITY;
+            // Sure when nothing unreached can be closer or tie, nor be a
+            // current target within the margin.
+            let sure = best.is_some_and(|(_, cost)| cost + self.switch_margin < search.radius());
+            if !(sure || everything) {
+                radius = radius.max(search.radius()) * 2.0;
+                if let Some((_, cost)) = best {
+                    radius = radius.min(cost + self.switch_margin + 1.0);
+                }
+                search.grow_to(radius);
+                continue;
+            }
+            let best = best.or_else(|| closest(false))?;
             // Hysteresis: keep the current target while it is free and not
             // farther than the best by more than the margin.
             let kept = current_target(robot)
                 .filter(|c| !taken.contains(c))
-                .and_then(|c| reachable.iter().copied().find(|(cell, _)| *cell == c))
+                .and_then(|c| reached.iter().copied().find(|(cell, _)| *cell == c))
                 .filter(|(_, cost)| cost - self.switch_margin <= best.1);
-            let (cell, cost) = kept.unwrap_or(best);
-            taken.push(cell);
-            targets[i] = Some(Target { cell, utility: -cost, path_cost: cost, gain_region: None });
+            return Some(kept.unwrap_or(best));
         }
-        Plan::of(targets)
     }
 }
 
@@ -114,5 +165,85 @@ mod tests {
         let robots = [robot(0, Cell::new(3, 1), 3.0), robot(1, Cell::new(5, 1), 3.0)];
         let targets = plan_with_defaults("unassigned", &grid, &robots);
         assert_eq!(targets, vec![Some(Cell::new(1, 1)), Some(Cell::new(1, 1))]);
+    }
+
+    proptest::proptest! {
+        #![proptest_config(crate::testing::seeded_proptest(256))]
+        /// Searching only as far as each choice needs chooses as the full
+        /// cost maps do, with current targets, exclusions and more robots
+        /// than frontier cells.
+        #[test]
+        fn searching_as_far_as_needed_chooses_as_the_full_search(
+            width in 4u32..28,
+            height in 4u32..28,
+            seed in 0u64..1_000_000,
+            robots in 1usize..8,
+            margin_tenths in 0u32..30,
+        ) {
+            use crate::cost::{CostCache, GrowingCostMap, TraversalKind};
+            use crate::frontier::{FrontierMap, clusters};
+            use crate::grid::{CellRect, GridFrame, OccupancyGrid};
+            use crate::policy::{CurrentTask, Plan, PlanningInput, Policy, Target};
+            use crate::rng::SplitMix64;
+
+            let frame = GridFrame::new(0.5, crate::math::Point2::origin(), width, height);
+            let mut rng = SplitMix64::new(seed);
+            let mut grid = OccupancyGrid::unknown(frame);
+            let (x0, y0) = (rng.below(u64::from(width / 2)) as i32, rng.below(u64::from(height / 2)) as i32);
+            let (x1, y1) = (x0 + 2 + rng.below(u64::from(width) - x0 as u64 - 1) as i32, y0 + 2 + rng.below(u64::from(height) - y0 as u64 - 1) as i32);
+            let mut free = Vec::new();
+            for i in 0..frame.len() {
+                let c = frame.cell(i);
+                if (x0..x1).contains(&c.x) && (y0..y1).contains(&c.y) {
+                    let wall = rng.below(5) == 0;
+                    grid.set(c, if wall { 95 } else { 5 });
+                    if !wall {
+                        free.push(c);
+                    }
+                }
+            }
+            proptest::prop_assume!(!free.is_empty());
+            let pick = |rng: &mut SplitMix64| free[rng.below(free.len() as u64) as usize];
+            let team: Vec<_> = (0..robots as u64)
+                .map(|id| {
+                    let mut r = robot(id, pick(&mut rng), 2.0);
+                    if rng.below(2) == 0 {
+                        r.current = Some(CurrentTask { target: pick(&mut rng), gain_region: None });
+                    }
+                    if rng.below(3) == 0 {
+                        let c = pick(&mut rng);
+                        r.excluded.push(CellRect::new(c.x - 1, c.y - 1, 3, 3));
+                    }
+                    r
+                })
+                .collect();
+            let frontier_map = FrontierMap::detect(&grid);
+            let clusters = clusters(&frontier_map, 1);
+            let bids = vec![Vec::new(); robots];
+            let input = PlanningInput {
+                grid: &grid,
+                clusters: &clusters,
+                robots: &team,
+                threads: 1 + (seed % 3) as usize,
+                bids: &bids,
+                seed: 0,
+                reserved: &[],
+                rooms: None,
+            };
+            let policy = super::Unassigned { switch_margin: f64::from(margin_tenths) / 10.0 };
+            let lazily = policy.plan(&input, &mut CostCache::new(&grid));
+            // The same choices over complete searches.
+            let traversal = CostCache::new(&grid).traversal(TraversalKind::free_space(0.0));
+            let frontier = input.frontier_cells();
+            let mut taken = Vec::new();
+            let fully = Plan::of(team.iter().map(|r| {
+                let mut search = GrowingCostMap::new(&traversal, r.cell);
+                search.grow_to(f64::INFINITY);
+                let (cell, cost) = policy.choose(r, &mut search, &frontier, &taken)?;
+                taken.push(cell);
+                Some(Target { cell, utility: -cost, path_cost: cost, gain_region: None })
+            }).collect());
+            proptest::prop_assert_eq!(lazily, fully);
+        }
     }
 }
