@@ -34,7 +34,7 @@
 //! see docs/results.md) and c_j is the path length in metres.
 
 use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor};
-use super::{Bid, Capabilities, Plan, PlanningInput, Policy, Target, free_space_cost_maps};
+use super::{Bid, Capabilities, Plan, PlanningInput, Policy, RobotView, Target, free_space_cost_maps};
 use crate::cost::{CostCache, CostMap};
 use crate::grid::{Cell, CellRect, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
 
@@ -242,38 +242,30 @@ impl Policy for Simmons {
         let resolution = grid.frame().resolution;
         // §4.2: a robot with a task and no new bids continues.
         let continues = |i: usize| input.bids.get(i).is_none_or(Vec::is_empty) && input.robots[i].current.is_some();
-        let needs_bids = (0..input.robots.len()).any(|i| input.bids.get(i).is_none_or(Vec::is_empty) && !continues(i));
+        let bidders: Vec<usize> =
+            (0..input.robots.len()).filter(|&i| input.bids.get(i).is_none_or(Vec::is_empty) && !continues(i)).collect();
         // Bids for idle robots that sent none: computed here from the fused
-        // map. Candidate cells and gains do not depend on the robot, only costs do.
-        let computed: Vec<Vec<Bid>> = if needs_bids {
+        // map, with cost maps for those robots only. Candidate cells and
+        // gains do not depend on the robot, only costs do.
+        let mut computed: Vec<Vec<Bid>> = vec![Vec::new(); input.robots.len()];
+        if !bidders.is_empty() {
             let frontier = spaced(&input.frontier_cells(), self.spacing_m / resolution);
-            let maps = free_space_cost_maps(input, costs);
+            let robots: Vec<RobotView> = bidders.iter().map(|&i| input.robots[i].clone()).collect();
+            let maps = free_space_cost_maps(&PlanningInput { robots: &robots, ..*input }, costs);
             let mut gains: std::collections::HashMap<(Cell, u64), (f64, CellRect)> = std::collections::HashMap::new();
-            input
-                .robots
-                .iter()
-                .zip(&maps)
-                .enumerate()
-                .map(|(i, (robot, map))| {
-                    if input.bids.get(i).is_some_and(|b| !b.is_empty()) || continues(i) {
-                        return Vec::new();
-                    }
-                    let range = robot.capabilities.sensor_range_m / resolution;
-                    frontier
-                        .iter()
-                        .filter_map(|&target| {
-                            let cost = robot.cost_to(map, target)?;
-                            let (gain, region) = *gains
-                                .entry((target, range.to_bits()))
-                                .or_insert_with(|| gain_region(grid, target, range));
-                            Some(Bid { target, path_cost_m: cost, information_gain: gain, gain_region: region })
-                        })
-                        .collect()
-                })
-                .collect()
-        } else {
-            vec![Vec::new(); input.robots.len()]
-        };
+            for ((&i, robot), map) in bidders.iter().zip(&robots).zip(&maps) {
+                let range = robot.capabilities.sensor_range_m / resolution;
+                computed[i] = frontier
+                    .iter()
+                    .filter_map(|&target| {
+                        let cost = robot.cost_to(map, target)?;
+                        let (gain, region) =
+                            *gains.entry((target, range.to_bits())).or_insert_with(|| gain_region(grid, target, range));
+                        Some(Bid { target, path_cost_m: cost, information_gain: gain, gain_region: region })
+                    })
+                    .collect();
+            }
+        }
         let bids: Vec<&[Bid]> = (0..input.robots.len())
             .map(|i| match input.bids.get(i) {
                 Some(b) if !b.is_empty() => &b[..],
@@ -459,6 +451,33 @@ mod tests {
         assert_eq!(plan_with_defaults("simmons", &grid, &robots).iter().filter(|t| t.is_some()).count(), 1);
         // Closest frontier sends both.
         assert!(plan_with_defaults("nearest", &grid, &robots).iter().all(Option::is_some));
+    }
+
+    /// §4.2: only idle robots without bids are bid for, so only they need
+    /// cost maps: a robot on its way to a task costs the replanning none.
+    #[test]
+    fn only_robots_that_need_bids_get_cost_maps() {
+        let grid = grid_from_picture(&[
+            "#?????????#", //
+            "#.........#", //
+            "#.........#", //
+            "###########", //
+        ]);
+        let mut busy = robot(0, Cell::new(2, 1), 5.0);
+        busy.current = Some(CurrentTask { target: Cell::new(2, 2), gain_region: Some(CellRect::new(1, 2, 4, 2)) });
+        let bid = Bid {
+            target: Cell::new(8, 2),
+            path_cost_m: 1.0,
+            information_gain: 5.0,
+            gain_region: CellRect::new(6, 2, 4, 2),
+        };
+        let robots = [busy, robot(1, Cell::new(5, 1), 5.0), robot(2, Cell::new(8, 1), 5.0)];
+        let bids = vec![Vec::new(), Vec::new(), vec![bid]];
+        let mut costs = CostCache::new(&grid);
+        let targets = with_input(&grid, &robots, &bids, |input| simmons().plan(input, &mut costs).targets);
+        assert_eq!(costs.computed(), 1, "one idle robot without bids");
+        assert_eq!(targets[0].map(|t| t.cell), Some(Cell::new(2, 2)), "the busy robot continues");
+        assert!(targets[1].is_some(), "the idle robot is bid for: {targets:?}");
     }
 
     /// A robot's bid region is its own claim: one spanning the whole `i32`
