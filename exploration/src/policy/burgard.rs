@@ -453,42 +453,21 @@ mod tests {
             beta_tenths in 0u32..40,
         ) {
             use crate::frontier::{FrontierMap, clusters};
-            use crate::grid::{CellRect, GridFrame, OccupancyGrid};
-            use crate::policy::{CurrentTask, PlanningInput};
+            use crate::policy::PlanningInput;
+            use crate::policy::testing::{random_known_rectangle, random_team};
             use crate::rng::SplitMix64;
 
-            let frame = GridFrame::new(0.5, crate::math::Point2::origin(), width, height);
             let mut rng = SplitMix64::new(seed);
-            let mut grid = OccupancyGrid::unknown(frame);
-            // Known: a random rectangle, mostly free with smoothing-worthy walls.
-            let (x0, y0) = (rng.below(u64::from(width / 2)) as i32, rng.below(u64::from(height / 2)) as i32);
-            let (x1, y1) = (x0 + 2 + rng.below(u64::from(width) - x0 as u64 - 1) as i32, y0 + 2 + rng.below(u64::from(height) - y0 as u64 - 1) as i32);
-            let mut free = Vec::new();
-            for i in 0..frame.len() {
-                let c = frame.cell(i);
-                if (x0..x1).contains(&c.x) && (y0..y1).contains(&c.y) {
-                    let value = match rng.below(10) { 0 => 95, 1 => 40, _ => 5 + rng.below(20) as u8 };
-                    grid.set(c, value);
-                    if value <= 60 {
-                        free.push(c);
-                    }
-                }
-            }
+            // Mostly free, with walls and cells too uncertain to cross, so
+            // that the smoothed costs vary.
+            let (grid, free) = random_known_rectangle(width, height, &mut rng, |rng| match rng.below(10) {
+                0 => 95,
+                1 => 70,
+                _ => 5 + rng.below(40) as u8,
+            });
             proptest::prop_assume!(!free.is_empty());
+            let team = random_team(robots, &free, &free, true, &mut rng);
             let pick = |rng: &mut SplitMix64| free[rng.below(free.len() as u64) as usize];
-            let team: Vec<RobotView> = (0..robots as u64)
-                .map(|id| {
-                    let mut r = robot(id, pick(&mut rng), 0.5 + 3.0 * rng.next_f64());
-                    if rng.below(2) == 0 {
-                        r.current = Some(CurrentTask { target: pick(&mut rng), gain_region: None });
-                    }
-                    if rng.below(3) == 0 {
-                        let c = pick(&mut rng);
-                        r.excluded.push(CellRect::new(c.x - 1, c.y - 1, 3, 3));
-                    }
-                    r
-                })
-                .collect();
             let reserved: Vec<(Cell, f64)> = (0..rng.below(3)).map(|_| (pick(&mut rng), 2.0)).collect();
             let frontier_map = FrontierMap::detect(&grid);
             let clusters = clusters(&frontier_map, 1);

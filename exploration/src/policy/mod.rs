@@ -428,6 +428,60 @@ pub(crate) mod testing {
         (grid, robots, Cell::new(1, 3), Cell::new(12, 3))
     }
 
+    /// A `width` × `height` grid (0.5 m cells), unknown but for a random
+    /// rectangle whose cells take `value(rng)`; and that rectangle's cells
+    /// a robot may stand on (P(occ) of at most 60 %).
+    pub fn random_known_rectangle(
+        width: u32,
+        height: u32,
+        rng: &mut crate::rng::SplitMix64,
+        mut value: impl FnMut(&mut crate::rng::SplitMix64) -> u8,
+    ) -> (OccupancyGrid, Vec<Cell>) {
+        let frame = crate::grid::GridFrame::new(0.5, crate::math::Point2::origin(), width, height);
+        let mut grid = OccupancyGrid::unknown(frame);
+        let (x0, y0) = (rng.below(u64::from(width / 2)) as i32, rng.below(u64::from(height / 2)) as i32);
+        let x1 = x0 + 2 + rng.below(u64::from(width) - x0 as u64 - 1) as i32;
+        let y1 = y0 + 2 + rng.below(u64::from(height) - y0 as u64 - 1) as i32;
+        let mut free = Vec::new();
+        for i in 0..frame.len() {
+            let c = frame.cell(i);
+            if (x0..x1).contains(&c.x) && (y0..y1).contains(&c.y) {
+                let v = value(rng);
+                grid.set(c, v);
+                if v <= 60 {
+                    free.push(c);
+                }
+            }
+        }
+        (grid, free)
+    }
+
+    /// `robots` robots on random cells of `free`; half of them hold a
+    /// current target drawn from `targets`, and with `exclusions` a third
+    /// must not be sent within a cell of some free cell.
+    pub fn random_team(
+        robots: usize,
+        free: &[Cell],
+        targets: &[Cell],
+        exclusions: bool,
+        rng: &mut crate::rng::SplitMix64,
+    ) -> Vec<RobotView> {
+        let pick = |cells: &[Cell], rng: &mut crate::rng::SplitMix64| cells[rng.below(cells.len() as u64) as usize];
+        (0..robots as u64)
+            .map(|id| {
+                let mut r = robot(id, pick(free, rng), 0.5 + 3.0 * rng.next_f64());
+                if rng.below(2) == 0 && !targets.is_empty() {
+                    r.current = Some(CurrentTask { target: pick(targets, rng), gain_region: None });
+                }
+                if exclusions && rng.below(3) == 0 {
+                    let c = pick(free, rng);
+                    r.excluded.push(crate::grid::CellRect::new(c.x - 1, c.y - 1, 3, 3));
+                }
+                r
+            })
+            .collect()
+    }
+
     /// Runs the named policy with its default parameters, as a mission that
     /// selects it without overrides would.
     pub fn plan_with_defaults(name: &str, grid: &OccupancyGrid, robots: &[RobotView]) -> Vec<Option<Cell>> {
@@ -544,38 +598,15 @@ mod tests {
             robots in 2usize..9,
         ) {
             use crate::frontier::{FrontierMap, clusters};
-            use crate::grid::{GridFrame, OccupancyGrid};
             use crate::rng::SplitMix64;
 
-            let frame = GridFrame::new(0.5, crate::math::Point2::origin(), width, height);
             let mut rng = SplitMix64::new(seed);
-            let mut grid = OccupancyGrid::unknown(frame);
-            let (x1, y1) = (2 + rng.below(u64::from(width - 1)) as i32, 2 + rng.below(u64::from(height - 1)) as i32);
-            let mut free = Vec::new();
-            for i in 0..frame.len() {
-                let c = frame.cell(i);
-                if c.x < x1 && c.y < y1 {
-                    let wall = rng.below(6) == 0;
-                    grid.set(c, if wall { 95 } else { 5 });
-                    if !wall {
-                        free.push(c);
-                    }
-                }
-            }
+            let (grid, free) = testing::random_known_rectangle(width, height, &mut rng, |rng| if rng.below(6) == 0 { 95 } else { 5 });
             let frontier = FrontierMap::detect(&grid);
             let clusters = clusters(&frontier, 1);
             proptest::prop_assume!(!free.is_empty() && !clusters.is_empty() && clusters.len() < robots);
-            let team: Vec<RobotView> = (0..robots as u64)
-                .map(|id| {
-                    let mut r = testing::robot(id, free[rng.below(free.len() as u64) as usize], 2.0);
-                    if rng.below(2) == 0 {
-                        let cluster = &clusters[rng.below(clusters.len() as u64) as usize];
-                        let target = cluster.cells[rng.below(cluster.cells.len() as u64) as usize];
-                        r.current = Some(CurrentTask { target, gain_region: None });
-                    }
-                    r
-                })
-                .collect();
+            let frontier_cells: Vec<Cell> = clusters.iter().flat_map(|c| c.cells.iter().copied()).collect();
+            let team = testing::random_team(robots, &free, &frontier_cells, false, &mut rng);
             let bids = vec![Vec::new(); robots];
             let input = PlanningInput {
                 grid: &grid,

@@ -182,41 +182,14 @@ mod tests {
         ) {
             use crate::cost::{CostCache, GrowingCostMap, TraversalKind};
             use crate::frontier::{FrontierMap, clusters};
-            use crate::grid::{CellRect, GridFrame, OccupancyGrid};
-            use crate::policy::{CurrentTask, Plan, PlanningInput, Policy, Target};
+            use crate::policy::testing::{random_known_rectangle, random_team};
+            use crate::policy::{Plan, PlanningInput, Policy, Target};
             use crate::rng::SplitMix64;
 
-            let frame = GridFrame::new(0.5, crate::math::Point2::origin(), width, height);
             let mut rng = SplitMix64::new(seed);
-            let mut grid = OccupancyGrid::unknown(frame);
-            let (x0, y0) = (rng.below(u64::from(width / 2)) as i32, rng.below(u64::from(height / 2)) as i32);
-            let (x1, y1) = (x0 + 2 + rng.below(u64::from(width) - x0 as u64 - 1) as i32, y0 + 2 + rng.below(u64::from(height) - y0 as u64 - 1) as i32);
-            let mut free = Vec::new();
-            for i in 0..frame.len() {
-                let c = frame.cell(i);
-                if (x0..x1).contains(&c.x) && (y0..y1).contains(&c.y) {
-                    let wall = rng.below(5) == 0;
-                    grid.set(c, if wall { 95 } else { 5 });
-                    if !wall {
-                        free.push(c);
-                    }
-                }
-            }
+            let (grid, free) = random_known_rectangle(width, height, &mut rng, |rng| if rng.below(5) == 0 { 95 } else { 5 });
             proptest::prop_assume!(!free.is_empty());
-            let pick = |rng: &mut SplitMix64| free[rng.below(free.len() as u64) as usize];
-            let team: Vec<_> = (0..robots as u64)
-                .map(|id| {
-                    let mut r = robot(id, pick(&mut rng), 2.0);
-                    if rng.below(2) == 0 {
-                        r.current = Some(CurrentTask { target: pick(&mut rng), gain_region: None });
-                    }
-                    if rng.below(3) == 0 {
-                        let c = pick(&mut rng);
-                        r.excluded.push(CellRect::new(c.x - 1, c.y - 1, 3, 3));
-                    }
-                    r
-                })
-                .collect();
+            let team = random_team(robots, &free, &free, true, &mut rng);
             let frontier_map = FrontierMap::detect(&grid);
             let clusters = clusters(&frontier_map, 1);
             let bids = vec![Vec::new(); robots];
