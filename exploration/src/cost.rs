@@ -20,7 +20,7 @@ use std::sync::Arc;
 use crate::grid::{Cell, CellClass, GridFrame, NEIGHBOURS_8, OccupancyGrid, UNKNOWN, classify};
 
 mod growing;
-pub use growing::{GrowingCostMap, cost_between};
+pub use growing::GrowingCostMap;
 
 /// What entering each cell costs, per metre; `f32::INFINITY` where impassable.
 ///

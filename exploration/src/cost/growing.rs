@@ -77,22 +77,6 @@ impl<'t> GrowingCostMap<'t> {
     }
 }
 
-/// The cost of the cheapest path from `from` to `to`, searching only as
-/// far as `to`: the figure a full cost map from `from` gives, to the bit.
-pub fn cost_between(traversal: &TraversalMap, from: Cell, to: Cell) -> Option<f64> {
-    let mut search = GrowingCostMap::new(traversal, from);
-    loop {
-        if let Some(cost) = search.cost(to) {
-            return Some(cost);
-        }
-        let radius = search.radius();
-        if radius == f64::INFINITY {
-            return None;
-        }
-        search.grow_to(2.0 * radius);
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
