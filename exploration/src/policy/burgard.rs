@@ -14,9 +14,9 @@
 //! casting). V is measured in metres × P(occ), so β does not depend on the
 //! grid resolution (at the paper's 15 cm cells, V in cells is V/0.15).
 
-use super::registry::{BETA, MIN_FRONTIER_SIZE, OCC_MAX, PolicyDescriptor, SMOOTHING, SWITCH_UTILITY};
 use std::sync::Arc;
 
+use super::registry::{BETA, MIN_FRONTIER_SIZE, OCC_MAX, PolicyDescriptor, SMOOTHING, SWITCH_UTILITY};
 use super::{Plan, PlanningInput, Policy, RobotView, Target, current_target, robot_cost_maps};
 use crate::cost::{CostCache, GrowingCostMap, TraversalKind, TraversalMap};
 use crate::grid::{Cell, CellClass, OccupancyGrid};
@@ -177,7 +177,7 @@ impl Burgard {
     /// Whether some robot without a target may have a better pair than
     /// `best` among the cells its search has not reached; if so, those
     /// searches go further (and line 5 is to be evaluated again). A cell
-    /// beyond radius r costs more than r, so its score is below
+    /// beyond radius r costs at least r, so its score is at most
     /// 1 + margin − β·r (utilities never exceed 1): a search needs to pass
     /// r = (1 + margin − best) / β, and without any pair yet, further.
     fn search_further(
