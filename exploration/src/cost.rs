@@ -410,26 +410,8 @@ pub fn labelled_cost_map(traversal: &TraversalMap, sources: &[Cell]) -> Labelled
 /// Runs the search; `labels`, when not empty, start as each source's index
 /// (the last where a cell is listed twice) and follow the improvements.
 fn settle_from(traversal: &TraversalMap, sources: &[Cell], corners: Corners, labels: &mut [u32]) -> CostMap {
-    let frame = traversal.frame;
-    let window = traversal.window;
     let mut cost = vec![f32::INFINITY; traversal.padded.len()];
-    let mut starts = Vec::new();
-    let mut stranded: Vec<(Cell, u32)> = Vec::new();
-    for (k, &s) in sources.iter().enumerate().filter(|(_, s)| frame.contains(**s)) {
-        match window.start_index(s) {
-            Some(i) => {
-                cost[i] = 0.0;
-                if !labels.is_empty() {
-                    labels[i] = k as u32;
-                }
-                starts.push(i);
-            }
-            None => match stranded.iter_mut().find(|(c, _)| *c == s) {
-                Some(seen) => seen.1 = k as u32,
-                None => stranded.push((s, k as u32)),
-            },
-        }
-    }
+    let (starts, stranded) = traversal.seed(sources, &mut cost, labels);
     let bounds = traversal.step_bounds();
     match (traversal.is_uniform(), corners == Corners::Cut) {
         (true, true) => settle::<_, true>(&traversal.uniform(), &mut cost, labels, &starts, bounds),
@@ -437,10 +419,36 @@ fn settle_from(traversal: &TraversalMap, sources: &[Cell], corners: Corners, lab
         (false, true) => settle::<_, true>(&traversal.weighted(), &mut cost, labels, &starts, bounds),
         (false, false) => settle::<_, false>(&traversal.weighted(), &mut cost, labels, &starts, bounds),
     }
-    CostMap { frame, window, cost, stranded }
+    CostMap { frame: traversal.frame, window: traversal.window, cost, stranded }
 }
 
 impl TraversalMap {
+    /// Puts the on-grid `sources` at cost zero (and, when `labels` is not
+    /// empty, labels them with their index, the last where a cell is listed
+    /// twice). Returns the window indices a search starts from, and the
+    /// sources outside the window with their index: those reach only
+    /// themselves.
+    fn seed(&self, sources: &[Cell], cost: &mut [f32], labels: &mut [u32]) -> (Vec<usize>, Vec<(Cell, u32)>) {
+        let mut starts = Vec::new();
+        let mut stranded: Vec<(Cell, u32)> = Vec::new();
+        for (k, &s) in sources.iter().enumerate().filter(|(_, s)| self.frame.contains(**s)) {
+            match self.window.start_index(s) {
+                Some(i) => {
+                    cost[i] = 0.0;
+                    if !labels.is_empty() {
+                        labels[i] = k as u32;
+                    }
+                    starts.push(i);
+                }
+                None => match stranded.iter_mut().find(|(c, _)| *c == s) {
+                    Some(seen) => seen.1 = k as u32,
+                    None => stranded.push((s, k as u32)),
+                },
+            }
+        }
+        (starts, stranded)
+    }
+
     /// Whether every passable cell costs the same per metre.
     fn is_uniform(&self) -> bool {
         self.step_range.0 == self.step_range.1

@@ -25,19 +25,14 @@ impl<'t> GrowingCostMap<'t> {
     /// The search from `source`, nothing settled yet but the source.
     pub fn new(traversal: &'t TraversalMap, source: Cell) -> Self {
         let mut cost = vec![f32::INFINITY; traversal.padded.len()];
-        if !traversal.frame.contains(source) {
-            return Self { traversal, cost, search: None, stranded: None };
-        }
-        let Some(start) = traversal.window.start_index(source) else {
-            return Self { traversal, cost, search: None, stranded: Some(source) };
-        };
-        cost[start] = 0.0;
-        let search = Buckets::fitting(&[start], traversal.step_bounds());
-        if search.is_none() {
+        let (starts, stranded) = traversal.seed(&[source], &mut cost, &mut []);
+        let stranded = stranded.first().map(|&(cell, _)| cell);
+        let search = if starts.is_empty() { None } else { Buckets::fitting(&starts, traversal.step_bounds()) };
+        if search.is_none() && !starts.is_empty() {
             // Step costs too far apart for buckets: one full search with the heap.
-            heap::<_, false>(&traversal.weighted(), &mut cost, &mut [], &[start]);
+            heap::<_, false>(&traversal.weighted(), &mut cost, &mut [], &starts);
         }
-        Self { traversal, cost, search, stranded: None }
+        Self { traversal, cost, search, stranded }
     }
 
     /// Every cell cheaper than this is answered by [`Self::cost`]; every
