@@ -60,6 +60,10 @@ impl Browser {
             .expect("Chromium starts");
         let endpoint = devtools_endpoint(&mut child);
         let (socket, _) = tungstenite::connect(endpoint.as_str()).expect("the DevTools socket accepts us");
+        // A Chromium that stops answering fails the test instead of hanging it.
+        if let MaybeTlsStream::Plain(stream) = socket.get_ref() {
+            stream.set_read_timeout(Some(Duration::from_secs(60))).expect("a read timeout");
+        }
         let mut browser = Self { chromium: child, socket, session: String::new(), next_id: 0 };
         let targets = browser.call("Target.getTargets", json!({}));
         let page = targets["targetInfos"]
