@@ -20,7 +20,7 @@ use std::sync::Arc;
 use crate::grid::{Cell, CellClass, GridFrame, NEIGHBOURS_8, OccupancyGrid, UNKNOWN, classify};
 
 mod growing;
-pub use growing::GrowingCostMap;
+pub use growing::{GoalDistance, GrowingCostMap};
 
 /// What entering each cell costs, per metre; `f32::INFINITY` where impassable.
 ///
@@ -466,6 +466,11 @@ impl TraversalMap {
         (resolution as f32, (resolution * std::f64::consts::SQRT_2) as f32)
     }
 
+    fn inbound(&self) -> Inbound<'_> {
+        let (orthogonal, diagonal) = self.step_lengths();
+        Inbound { costs: &self.padded, bits: &self.passable_bits, stride: self.window.stride, orthogonal, diagonal }
+    }
+
     fn weighted(&self) -> Weighted<'_> {
         let (orthogonal, diagonal) = self.step_lengths();
         Weighted { costs: &self.padded, bits: &self.passable_bits, stride: self.window.stride, orthogonal, diagonal }
@@ -549,6 +554,42 @@ impl Neighbourhood for Uniform<'_> {
             [(i + s + 1, i + 1, i + s), (i + s - 1, i - 1, i + s), (i - s + 1, i + 1, i - s), (i - s - 1, i - 1, i - s)]
         {
             if bit(self.bits, j) && (CUT || (bit(self.bits, a) && bit(self.bits, b))) {
+                improve(j, slanted);
+            }
+        }
+    }
+}
+
+/// The steps into a cell rather than out of it: relaxing from `i` offers
+/// each neighbour `j` the cost of the step j → i (entering `i`). A search
+/// over it from a set of goals gives every cell its cost to the nearest
+/// goal, on the same steps and corner rule as the forward searches.
+struct Inbound<'a> {
+    costs: &'a [f32],
+    bits: &'a [u64],
+    stride: usize,
+    orthogonal: f32,
+    diagonal: f32,
+}
+
+impl Neighbourhood for Inbound<'_> {
+    #[inline(always)]
+    fn neighbours<const CUT: bool>(&self, i: usize, here: f32, mut improve: impl FnMut(usize, f32)) {
+        // Nothing enters an impassable cell. A passable one is off the
+        // window's border, so its neighbours are in bounds.
+        if !bit(self.bits, i) {
+            return;
+        }
+        let s = self.stride;
+        let straight = here + self.orthogonal * self.costs[i];
+        for j in [i + 1, i - 1, i + s, i - s] {
+            improve(j, straight);
+        }
+        let slanted = here + self.diagonal * self.costs[i];
+        for (j, a, b) in
+            [(i + s + 1, i + 1, i + s), (i + s - 1, i - 1, i + s), (i - s + 1, i + 1, i - s), (i - s - 1, i - 1, i - s)]
+        {
+            if CUT || (bit(self.bits, a) && bit(self.bits, b)) {
                 improve(j, slanted);
             }
         }
@@ -663,6 +704,68 @@ impl Buckets {
                             }
                             rings[(c * per_bucket) as usize & slot_mask].push(j as u32);
                             *pending += 1;
+                        }
+                    });
+                }
+                batch.clear();
+            }
+            *current += 1;
+        }
+    }
+}
+
+impl Buckets {
+    /// Buckets for a search ordered by cost plus a consistent estimate of
+    /// the cost still to go (A*: Hart, Nilsson & Raphael 1968), from `start`
+    /// whose estimate is `estimate`. Along a step the key grows by at most
+    /// the step there and back: the ring must hold twice the dearest step.
+    fn guided(start: usize, estimate: f32, steps: (f32, f32)) -> Option<Self> {
+        // Rounding can make a key a hair larger than consistency allows.
+        let mut buckets = Self::fitting(&[start], (steps.0, 2.0 * steps.1 * 1.001))?;
+        let first = (estimate * buckets.per_bucket) as usize;
+        buckets.rings.swap(0, first & buckets.slot_mask);
+        buckets.current = first;
+        Some(buckets)
+    }
+
+    /// Settles the buckets before `end` in order of cost plus `estimate`,
+    /// never expanding a cell whose estimate is infinite (it reaches no
+    /// goal). A cell may be expanded again when a cell of the same bucket
+    /// improves it (keys within a bucket are not in order); `open` marks
+    /// the cells whose present cost is still to be expanded.
+    fn drain_guided<N: Neighbourhood>(
+        &mut self,
+        n: &N,
+        cost: &mut [f32],
+        estimate: &[f32],
+        open: &mut [u64],
+        end: usize,
+    ) {
+        let Self { rings, slot_mask, per_bucket, current, pending, batch } = self;
+        let (slot_mask, per_bucket) = (*slot_mask, *per_bucket);
+        while *pending > 0 && *current < end {
+            let slot = *current & slot_mask;
+            let floor = *current;
+            while !rings[slot].is_empty() {
+                std::mem::swap(batch, &mut rings[slot]);
+                *pending -= batch.len();
+                for &i in batch.iter() {
+                    let i = i as usize;
+                    if !bit(open, i) {
+                        continue;
+                    }
+                    open[i / 64] &= !(1 << (i % 64));
+                    n.neighbours::<false>(i, cost[i], |j, c| {
+                        if c < cost[j] {
+                            cost[j] = c;
+                            let h = estimate[j];
+                            if h.is_finite() {
+                                open[j / 64] |= 1 << (j % 64);
+                                // Never behind the bucket being drained, whatever the rounding.
+                                let b = (((c + h) * per_bucket) as usize).max(floor);
+                                rings[b & slot_mask].push(j as u32);
+                                *pending += 1;
+                            }
                         }
                     });
                 }

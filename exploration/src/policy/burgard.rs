@@ -14,11 +14,9 @@
 //! casting). V is measured in metres × P(occ), so β does not depend on the
 //! grid resolution (at the paper's 15 cm cells, V in cells is V/0.15).
 
-use std::sync::Arc;
-
 use super::registry::{BETA, MIN_FRONTIER_SIZE, OCC_MAX, PolicyDescriptor, SMOOTHING, SWITCH_UTILITY};
-use super::{Plan, PlanningInput, Policy, RobotView, Target, current_target, robot_cost_maps};
-use crate::cost::{CostCache, GrowingCostMap, TraversalKind, TraversalMap};
+use super::{Plan, PlanningInput, Policy, RobotView, Target, Towards, current_target, robot_cost_maps, towards_goals};
+use crate::cost::{CostCache, GrowingCostMap, TraversalKind};
 use crate::grid::{Cell, CellClass, OccupancyGrid};
 use crate::visibility::line_of_sight;
 
@@ -198,20 +196,26 @@ impl Burgard {
                 Some(best) if self.beta > 0.0 => (1.0 + margin - best) / self.beta,
                 Some(_) => f64::INFINITY,
                 // Nothing reached yet: widen by the distance at which cost
-                // outweighs a whole utility, doubling.
-                None => (2.0 * radius).max(1.0 / self.beta),
+                // outweighs a whole utility.
+                None => radius + 1.0 / self.beta,
             };
             // At the radius itself a score could tie with `best`, and ties
             // are broken by robot and cell: the search must pass it.
             if radius <= needed {
-                // Half as far again: fewer, larger steps as line 5's best falls.
-                further.push((i, needed.max(1.5 * radius)));
+                // A little further: fewer rounds as line 5's best falls. The
+                // search is guided to the frontier, so a wider radius costs
+                // a wider band along the way there, not a larger disc.
+                further.push((i, needed + GROWTH_SLACK_M));
             }
         }
         values.grow(input.robots, &further, input.threads);
         !further.is_empty()
     }
 }
+
+/// How much further than line 5 needs a search goes when it must go
+/// further, metres: a few rounds fewer for little more searching.
+const GROWTH_SLACK_M: f64 = 0.5;
 
 /// Where Algorithm 1 reads V_t^i: per robot, a row over the frontier cells
 /// (`None` where unreachable, forbidden or not searched yet) and how far
@@ -249,12 +253,14 @@ struct Searched<'t> {
 }
 
 impl<'t> Searched<'t> {
-    fn new(traversals: &'t [Arc<TraversalMap>], robots: &[RobotView], frontier: &'t [Cell]) -> Self {
+    /// `goals` holds each robot's traversal's distance to the frontier
+    /// (one per traversal kind, shared), which orders its search.
+    fn new(traversals: &'t [Towards], robots: &[RobotView], frontier: &'t [Cell]) -> Self {
         let searches = robots
             .iter()
             .zip(traversals)
-            .map(|(r, t)| {
-                let map = GrowingCostMap::new(t, r.cell);
+            .map(|(r, (t, goals))| {
+                let map = GrowingCostMap::towards(t, r.cell, goals);
                 let mut row = vec![None; frontier.len()];
                 fill(&mut row, &map, r, frontier);
                 (map, row)
@@ -320,8 +326,8 @@ impl Policy for Burgard {
     /// [`Burgard::search_further`]): the plan of the full cost maps.
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
-        let traversals: Vec<Arc<TraversalMap>> =
-            input.robots.iter().map(|r| costs.traversal(self.traversal_kind(r))).collect();
+        let kinds: Vec<TraversalKind> = input.robots.iter().map(|r| self.traversal_kind(r)).collect();
+        let traversals = towards_goals(&kinds, costs, &frontier);
         let mut values = Searched::new(&traversals, input.robots, &frontier);
         Plan::of(self.select(input, &frontier, &mut values))
     }

@@ -161,6 +161,28 @@ pub fn robot_cost_maps(
     input.robots.iter().zip(kinds).map(|(robot, kind)| costs.cost_map(*kind, robot.cell)).collect()
 }
 
+/// A traversal and its distance to the goals a search over it heads for.
+pub type Towards = (std::sync::Arc<crate::cost::TraversalMap>, std::sync::Arc<crate::cost::GoalDistance>);
+
+/// Each robot's traversal (of `kinds`, one per robot) with that traversal's
+/// distance to the nearest of `goals`, computed once per kind: what a
+/// search from the robot towards the goals is ordered by
+/// ([`crate::cost::GrowingCostMap::towards`]).
+pub fn towards_goals(kinds: &[crate::cost::TraversalKind], costs: &mut CostCache<'_>, goals: &[Cell]) -> Vec<Towards> {
+    let mut by_kind: BTreeMap<crate::cost::TraversalKind, std::sync::Arc<crate::cost::GoalDistance>> = BTreeMap::new();
+    kinds
+        .iter()
+        .map(|&kind| {
+            let traversal = costs.traversal(kind);
+            let distance = by_kind
+                .entry(kind)
+                .or_insert_with(|| std::sync::Arc::new(crate::cost::GoalDistance::new(&traversal, goals)))
+                .clone();
+            (traversal, distance)
+        })
+        .collect()
+}
+
 /// What reaching one frontier cluster costs a robot.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ClusterCost {

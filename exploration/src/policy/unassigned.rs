@@ -13,10 +13,8 @@
 //! shares the closest one.
 
 use super::registry::{MIN_FRONTIER_SIZE, PolicyDescriptor, SWITCH_METRES};
-use std::sync::Arc;
-
-use super::{Plan, PlanningInput, Policy, RobotView, Target, current_target};
-use crate::cost::{CostCache, GrowingCostMap, TraversalKind, TraversalMap, in_parallel};
+use super::{Plan, PlanningInput, Policy, RobotView, Target, Towards, current_target, towards_goals};
+use crate::cost::{CostCache, GrowingCostMap, TraversalKind, in_parallel};
 use crate::grid::Cell;
 
 pub(super) const NAME: &str = "unassigned";
@@ -49,14 +47,12 @@ impl Policy for Unassigned {
     /// took its cell.
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
-        let traversals: Vec<Arc<TraversalMap>> = input
-            .robots
-            .iter()
-            .map(|r| costs.traversal(TraversalKind::free_space(r.capabilities.footprint_radius_m)))
-            .collect();
-        let pairs: Vec<(&RobotView, &Arc<TraversalMap>)> = input.robots.iter().zip(&traversals).collect();
-        let mut searches = in_parallel(&pairs, input.threads, |(robot, traversal)| {
-            let mut search = GrowingCostMap::new(traversal, robot.cell);
+        let kinds: Vec<TraversalKind> =
+            input.robots.iter().map(|r| TraversalKind::free_space(r.capabilities.footprint_radius_m)).collect();
+        let traversals = towards_goals(&kinds, costs, &frontier);
+        let pairs: Vec<(&RobotView, &Towards)> = input.robots.iter().zip(&traversals).collect();
+        let mut searches = in_parallel(&pairs, input.threads, |(robot, (traversal, goals))| {
+            let mut search = GrowingCostMap::towards(traversal, robot.cell, goals);
             self.choose(robot, &mut search, &frontier, &[]);
             search
         });
@@ -88,8 +84,10 @@ impl Unassigned {
         frontier: &[Cell],
         taken: &[Cell],
     ) -> Option<(Cell, f64)> {
-        // A robot's first look: about its own size, then doubling.
-        let mut radius = 1.0f64;
+        // A robot's first look: about its own size past the nearest
+        // frontier cell (where a search towards the frontier starts), then
+        // doubling that step.
+        let mut step = 1.0f64;
         loop {
             let reached: Vec<(Cell, f64)> =
                 frontier.iter().filter(|&&c| robot.may_target(c)).filter_map(|&c| Some((c, search.cost(c)?))).collect();
@@ -107,7 +105,8 @@ impl Unassigned {
             // current target within the margin.
             let sure = best.is_some_and(|(_, cost)| cost + self.switch_margin < search.radius());
             if !(sure || everything) {
-                radius = radius.max(search.radius()) * 2.0;
+                let mut radius = search.radius() + step;
+                step *= 2.0;
                 if let Some((_, cost)) = best {
                     radius = radius.min(cost + self.switch_margin + 1.0);
                 }
