@@ -88,6 +88,7 @@ impl Unassigned {
         // frontier cell (where a search towards the frontier starts), then
         // doubling that step.
         let mut step = 1.0f64;
+        let margin = if current_target(robot).is_some_and(|c| !taken.contains(&c)) { self.switch_margin } else { 0.0 };
         loop {
             let reached: Vec<(Cell, f64)> =
                 frontier.iter().filter(|&&c| robot.may_target(c)).filter_map(|&c| Some((c, search.cost(c)?))).collect();
@@ -102,13 +103,15 @@ impl Unassigned {
             let best = closest(true);
             let everything = search.radius() == f64::INFINITY;
             // Sure when nothing unreached can be closer or tie, nor be a
-            // current target within the margin.
-            let sure = best.is_some_and(|(_, cost)| cost + self.switch_margin < search.radius());
+            // current target within the margin (for a robot that holds one).
+            let sure = best.is_some_and(|(_, cost)| cost + margin < search.radius());
             if !(sure || everything) {
                 let mut radius = search.radius() + step;
                 step *= 2.0;
                 if let Some((_, cost)) = best {
-                    radius = radius.min(cost + self.switch_margin + 1.0);
+                    // Just past it: a search towards the frontier pays for
+                    // every metre of slack with a wider band.
+                    radius = radius.min(cost + margin + 1e-3);
                 }
                 search.grow_to(radius);
                 continue;
