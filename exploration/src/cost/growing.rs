@@ -35,6 +35,21 @@ impl GoalDistance {
         }
         Self { cost }
     }
+
+    /// The cost from `cell` to the nearest goal over `traversal` (the one
+    /// this was computed over), when a search from `cell` reaches one; `None`
+    /// for a cell no search starts from (off the traversal's window).
+    pub fn cost(&self, traversal: &TraversalMap, cell: Cell) -> Option<f64> {
+        let i = traversal.window.start_index(cell).filter(|_| traversal.frame.contains(cell))?;
+        let c = self.cost[i];
+        c.is_finite().then_some(f64::from(c))
+    }
+
+    /// Whether a search from `cell` over `traversal` starts inside its
+    /// window (elsewhere a robot reaches only its own cell).
+    pub fn starts_inside(traversal: &TraversalMap, cell: Cell) -> bool {
+        traversal.frame.contains(cell) && traversal.window.start_index(cell).is_some()
+    }
 }
 
 /// A cost map from one source, settled up to [`GrowingCostMap::radius`].

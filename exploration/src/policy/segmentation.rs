@@ -20,11 +20,14 @@
 //! More robots than unexplored segments: the segments are offered again to
 //! the robots left over (§III, "duplicating existing targets").
 
+use std::sync::Arc;
+
 use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_METRES};
-use super::{Plan, PlanningInput, Policy, Target, current_target, free_space_cost_maps};
+use super::{Plan, PlanningInput, Policy, RobotView, Target, current_target, free_space_cost_maps};
 use crate::assign::assign_with_dummies;
-use crate::cost::CostCache;
-use crate::segment::{given, segment};
+use crate::cost::{CostCache, CostMap, GoalDistance, GrowingCostMap, TraversalKind, TraversalMap, in_parallel};
+use crate::grid::Cell;
+use crate::segment::{Segment, given, segment};
 
 pub(super) const NAME: &str = "segmentation";
 
@@ -130,22 +133,21 @@ impl Policy for SegmentationPolicy {
                 (self.min_segment_m2 / (resolution * resolution)).ceil() as usize,
             )
         });
-        let open: Vec<&crate::segment::Segment> =
-            segmentation.segments.iter().filter(|s| !s.frontier.is_empty()).collect();
-        let maps = free_space_cost_maps(input, costs);
+        let open: Vec<&Segment> = segmentation.segments.iter().filter(|s| !s.frontier.is_empty()).collect();
+        let reach = Reach::new(input, costs, &open);
         // Lines 3–4: C_s^i, infinite where robot i cannot reach segment s (Eq. 4).
         let segment_costs: Vec<Vec<f64>> = input
             .robots
             .iter()
-            .zip(&maps)
-            .map(|(robot, map)| {
+            .enumerate()
+            .map(|(i, robot)| {
                 let home = segmentation.segment_of(robot.cell);
                 let current = current_target(robot);
                 let target_segment = current.and_then(|c| segmentation.segment_of(c));
                 open.iter()
-                    .map(|s| {
-                        let nearest =
-                            s.frontier.iter().filter_map(|&c| robot.cost_to(map, c)).fold(f64::INFINITY, f64::min);
+                    .enumerate()
+                    .map(|(k, s)| {
+                        let nearest = reach.nearest(i, robot, k, s);
                         let inside = if home == Some(s.id) { nearest * self.inside_discount } else { nearest };
                         if target_segment == Some(s.id) { inside - self.switch_margin } else { inside }
                     })
@@ -154,7 +156,13 @@ impl Policy for SegmentationPolicy {
             .collect();
         // Line 5: robots to segments.
         let chosen = assign_in_rounds(&segment_costs, open.len());
-        // Lines 6–8: within each segment, its robots to its frontier cells.
+        // Lines 6–8: within each segment, its robots to its frontier cells,
+        // each robot's costs to its segment's cells computed in parallel.
+        let everyone: Vec<usize> = (0..input.robots.len()).collect();
+        let path_costs: Vec<Vec<f64>> = in_parallel(&everyone, input.threads, |&i| match chosen[i] {
+            Some(k) => reach.to_cells(i, &input.robots[i], k, &open[k].frontier),
+            None => Vec::new(),
+        });
         let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
         for (k, s) in open.iter().enumerate() {
             let robots: Vec<usize> = (0..chosen.len()).filter(|&i| chosen[i] == Some(k)).collect();
@@ -167,10 +175,8 @@ impl Policy for SegmentationPolicy {
                     let current = current_target(&input.robots[i]);
                     s.frontier
                         .iter()
-                        .map(|&c| {
-                            let cost = input.robots[i].cost_to(&maps[i], c).unwrap_or(f64::INFINITY);
-                            if Some(c) == current { cost - self.switch_margin } else { cost }
-                        })
+                        .zip(&path_costs[i])
+                        .map(|(&c, &cost)| if Some(c) == current { cost - self.switch_margin } else { cost })
                         .collect()
                 })
                 .collect();
@@ -178,17 +184,76 @@ impl Policy for SegmentationPolicy {
             for (row, col) in within.iter().enumerate() {
                 let i = robots[row];
                 if let Some(c) = col {
-                    let cost = input.robots[i].cost_to(&maps[i], s.frontier[*c]).unwrap_or(f64::INFINITY);
                     targets[i] = Some(Target {
                         cell: s.frontier[*c],
                         utility: -segment_costs[i][k],
-                        path_cost: cost,
+                        path_cost: path_costs[i][*c],
                         gain_region: None,
                     });
                 }
             }
         }
         Plan { targets, segmentation: Some(segmentation) }
+    }
+}
+
+/// What reaching the open segments and their frontier cells costs the robots.
+enum Reach {
+    /// Each robot's complete cost map.
+    Own(Vec<Arc<CostMap>>),
+    /// One search from each open segment's frontier cells, when there are
+    /// fewer segments than robots, the robots share one footprint and none
+    /// has cells it must not be sent to. On free space a path reversed
+    /// costs the same, so a segment's search gives every robot C_s^i (to
+    /// rounding: the steps are added in the other order), as a cluster's
+    /// wavefront does for MinPos (Bautin et al. 2011); and it orders each
+    /// robot's search towards its segment's cells (lines 6–8).
+    FromSegments { traversal: Arc<TraversalMap>, goals: Vec<GoalDistance> },
+}
+
+impl Reach {
+    fn new(input: &PlanningInput<'_>, costs: &mut CostCache<'_>, open: &[&Segment]) -> Self {
+        let kinds: Vec<TraversalKind> =
+            input.robots.iter().map(|r| TraversalKind::free_space(r.capabilities.footprint_radius_m)).collect();
+        let one_kind = kinds.windows(2).all(|w| w[0] == w[1]);
+        if let Some(&kind) = kinds.first().filter(|_| one_kind && open.len() < input.robots.len()) {
+            let traversal = costs.traversal(kind);
+            let plain = |r: &RobotView| r.excluded.is_empty() && GoalDistance::starts_inside(&traversal, r.cell);
+            if input.robots.iter().all(plain) {
+                let goals = in_parallel(open, input.threads, |s| GoalDistance::new(&traversal, &s.frontier));
+                return Self::FromSegments { traversal, goals };
+            }
+        }
+        Self::Own(free_space_cost_maps(input, costs))
+    }
+
+    /// C_s^i (line 3): robot `i`'s cost to the nearest frontier cell of
+    /// `segment` (the `k`-th open one); infinite where it cannot reach it.
+    fn nearest(&self, i: usize, robot: &RobotView, k: usize, segment: &Segment) -> f64 {
+        match self {
+            Self::Own(maps) => {
+                segment.frontier.iter().filter_map(|&c| robot.cost_to(&maps[i], c)).fold(f64::INFINITY, f64::min)
+            }
+            Self::FromSegments { traversal, goals } => goals[k].cost(traversal, robot.cell).unwrap_or(f64::INFINITY),
+        }
+    }
+
+    /// Robot `i`'s path cost to each of `cells`, the frontier of the `k`-th
+    /// open segment; infinite where it cannot go or must not be sent.
+    fn to_cells(&self, i: usize, robot: &RobotView, k: usize, cells: &[Cell]) -> Vec<f64> {
+        match self {
+            Self::Own(maps) => cells.iter().map(|&c| robot.cost_to(&maps[i], c).unwrap_or(f64::INFINITY)).collect(),
+            Self::FromSegments { traversal, goals } => {
+                // Towards the segment's cells, until it has reached them all.
+                let mut search = GrowingCostMap::towards(traversal, robot.cell, &goals[k]);
+                let mut step = 1.0;
+                while search.radius() < f64::INFINITY && !cells.iter().all(|&c| search.cost(c).is_some()) {
+                    search.grow_to(search.radius() + step);
+                    step *= 2.0;
+                }
+                cells.iter().map(|&c| search.cost(c).unwrap_or(f64::INFINITY)).collect()
+            }
+        }
     }
 }
 
@@ -265,5 +330,59 @@ mod tests {
         let segmentation = plan.segmentation.expect("the plan keeps its segmentation");
         assert_eq!(segmentation.segments.len(), 2);
         assert!(segmentation.critical_points.is_empty());
+    }
+
+    proptest::proptest! {
+        #![proptest_config(crate::testing::seeded_proptest(256))]
+        /// Searching from the segments gives each robot the segment costs
+        /// of its own complete cost map (to rounding) and exactly its costs
+        /// to the cells of a segment, over random rooms, walls and teams.
+        #[test]
+        fn searches_from_segments_cost_what_the_robots_own_searches_do(
+            width in 4u32..30,
+            height in 4u32..30,
+            seed in 0u64..1_000_000,
+            robots in 1usize..6,
+        ) {
+            use crate::frontier::{FrontierMap, clusters};
+            use crate::policy::testing::{random_known_rectangle, random_team};
+            use crate::rng::SplitMix64;
+
+            let mut rng = SplitMix64::new(seed);
+            let (grid, free) = random_known_rectangle(width, height, &mut rng, |rng| if rng.below(6) == 0 { 95 } else { 10 });
+            proptest::prop_assume!(!free.is_empty());
+            let team = random_team(robots, &free, &free, false, &mut rng);
+            let frontier_map = FrontierMap::detect(&grid);
+            let clusters = clusters(&frontier_map, 1);
+            let bids = vec![Vec::new(); robots];
+            let input = PlanningInput {
+                grid: &grid,
+                clusters: &clusters,
+                robots: &team,
+                threads: 1,
+                bids: &bids,
+                seed: 0,
+                reserved: &[],
+                rooms: None,
+            };
+            let segmentation = segment(&grid, &input.frontier_cells(), 1.0, 4);
+            let open: Vec<&Segment> = segmentation.segments.iter().filter(|s| !s.frontier.is_empty()).collect();
+            let mut costs = CostCache::new(&grid);
+            let traversal = costs.traversal(TraversalKind::free_space(team[0].capabilities.footprint_radius_m));
+            proptest::prop_assume!(team.iter().all(|r| GoalDistance::starts_inside(&traversal, r.cell)));
+            let goals = open.iter().map(|s| GoalDistance::new(&traversal, &s.frontier)).collect();
+            let from_segments = Reach::FromSegments { traversal, goals };
+            let own = Reach::Own(free_space_cost_maps(&input, &mut costs));
+            for (i, robot) in team.iter().enumerate() {
+                for (k, s) in open.iter().enumerate() {
+                    let (a, b) = (from_segments.nearest(i, robot, k, s), own.nearest(i, robot, k, s));
+                    proptest::prop_assert!(a == b || (a - b).abs() < 1e-4, "robot {} segment {}: {} vs {}", i, k, a, b);
+                    proptest::prop_assert_eq!(
+                        from_segments.to_cells(i, robot, k, &s.frontier),
+                        own.to_cells(i, robot, k, &s.frontier)
+                    );
+                }
+            }
+        }
     }
 }
