@@ -137,6 +137,16 @@ impl<'t> GrowingCostMap<'t> {
         }
     }
 
+    /// Resumes the search until it answers for every one of `cells` or has
+    /// settled all it can, in steps that double.
+    pub fn grow_to_reach(&mut self, cells: &[Cell]) {
+        let mut step = 1.0;
+        while self.radius() < f64::INFINITY && !cells.iter().all(|&c| self.cost(c).is_some()) {
+            self.grow_to(self.radius() + step);
+            step *= 2.0;
+        }
+    }
+
     /// The cost of reaching `cell`, if it is below the radius; `None` for a
     /// cell beyond it or unreachable (or, searching towards goals, off the
     /// way to every goal within the radius).

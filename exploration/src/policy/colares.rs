@@ -42,11 +42,11 @@
 //! is. The paper's robots decide alone and meet to merge maps; here all
 //! poses are known to the executive, so every robot sees every other.
 
-use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_UTILITY};
 #[cfg(test)]
-use super::{CurrentTask, RobotView};
-use super::{Plan, PlanningInput, Policy, Target, current_target, free_space_cost_maps};
-use crate::cost::CostCache;
+use super::CurrentTask;
+use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_UTILITY};
+use super::{Plan, PlanningInput, Policy, RobotView, Target, Towards, current_target, towards_goals};
+use crate::cost::{CostCache, GrowingCostMap, TraversalKind, in_parallel};
 use crate::grid::{Cell, CellRect, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
 
 pub(super) const NAME: &str = "colares";
@@ -205,9 +205,7 @@ impl Policy for Colares {
             })
             .collect();
         let inf = normalized(&inf);
-        let maps = free_space_cost_maps(input, costs);
-        let distances: Vec<Vec<Option<f64>>> =
-            maps.iter().zip(input.robots).map(|(m, r)| frontier.iter().map(|&c| r.cost_to(m, c)).collect()).collect();
+        let distances = frontier_distances(input, costs, &frontier);
         let farthest: Vec<f64> =
             distances.iter().map(|row| row.iter().flatten().copied().fold(0.0f64, f64::max)).collect();
         // Negative wavefronts: 1 at each robot, falling to 0 at its farthest frontier cell.
@@ -234,9 +232,15 @@ impl Policy for Colares {
                     Commit::UntilReached => true,
                 };
                 let committed = robot.current.filter(|c| c.target != robot.cell && keeps(c.target));
-                if let Some((current, cost)) =
-                    committed.and_then(|c| robot.cost_to(&maps[i], c.target).map(|cost| (c, cost)))
-                {
+                if let Some((current, cost)) = committed.and_then(|c| {
+                    // A target no longer frontier (kept until reached) is off
+                    // the way the search towards the frontier went.
+                    let cost = match frontier.iter().position(|&f| f == c.target) {
+                        Some(t) => distances[i][t],
+                        None => robot.cost_to(&costs.cost_map(free_space_of(robot), robot.cell), c.target),
+                    };
+                    cost.map(|cost| (c, cost))
+                }) {
                     return Some(Target { cell: current.target, utility: 0.0, path_cost: cost, gain_region: None });
                 }
                 let far = farthest[i];
@@ -265,6 +269,29 @@ impl Policy for Colares {
             .collect();
         Plan::of(targets)
     }
+}
+
+/// Each robot's wavefront distance to every frontier cell (`None` where it
+/// cannot go or must not be sent): its search goes towards the frontier
+/// (A*) until it has reached every frontier cell, on the planner's threads.
+fn frontier_distances(
+    input: &PlanningInput<'_>,
+    costs: &mut CostCache<'_>,
+    frontier: &[Cell],
+) -> Vec<Vec<Option<f64>>> {
+    let kinds: Vec<TraversalKind> = input.robots.iter().map(free_space_of).collect();
+    let towards = towards_goals(&kinds, costs, frontier);
+    let pairs: Vec<(&RobotView, &Towards)> = input.robots.iter().zip(&towards).collect();
+    in_parallel(&pairs, input.threads, |(robot, (traversal, goals))| {
+        let mut search = GrowingCostMap::towards(traversal, robot.cell, goals);
+        search.grow_to_reach(frontier);
+        frontier.iter().map(|&c| if robot.may_target(c) { search.cost(c) } else { None }).collect()
+    })
+}
+
+/// The free-space traversal of the robot's footprint.
+fn free_space_of(robot: &RobotView) -> TraversalKind {
+    TraversalKind::free_space(robot.capabilities.footprint_radius_m)
 }
 
 #[cfg(test)]
@@ -401,5 +428,53 @@ mod tests {
         assert!(pushed.x > 21, "alone {chosen:?}, with a robot below it: {pushed:?}");
         let nearest = [plan_with_defaults("nearest", &grid, &alone)[0], plan_with_defaults("nearest", &grid, &pair)[0]];
         assert_eq!(nearest, [Some(Cell::new(21, 2)); 2]);
+    }
+
+    proptest::proptest! {
+        #![proptest_config(crate::testing::seeded_proptest(256))]
+        /// The searches towards the frontier give every robot the distance
+        /// to every frontier cell that its complete wavefront gives, over
+        /// random rooms, walls, footprints and excluded cells.
+        #[test]
+        fn searches_towards_the_frontier_measure_as_complete_wavefronts(
+            width in 4u32..30,
+            height in 4u32..30,
+            seed in 0u64..1_000_000,
+            robots in 1usize..6,
+        ) {
+            use crate::frontier::{FrontierMap, clusters};
+            use crate::policy::free_space_cost_maps;
+            use crate::policy::testing::{random_known_rectangle, random_team};
+            use crate::rng::SplitMix64;
+
+            let mut rng = SplitMix64::new(seed);
+            let (grid, free) = random_known_rectangle(width, height, &mut rng, |rng| if rng.below(6) == 0 { 95 } else { 10 });
+            proptest::prop_assume!(!free.is_empty());
+            let mut team = random_team(robots, &free, &free, true, &mut rng);
+            for robot in team.iter_mut().filter(|_| rng.below(2) == 0) {
+                robot.capabilities.footprint_radius_m = 0.6;
+            }
+            let frontier_map = FrontierMap::detect(&grid);
+            let clusters = clusters(&frontier_map, 1);
+            let bids = vec![Vec::new(); robots];
+            let input = PlanningInput {
+                grid: &grid,
+                clusters: &clusters,
+                robots: &team,
+                threads: 1 + (seed % 2) as usize,
+                bids: &bids,
+                seed: 0,
+                reserved: &[],
+                rooms: None,
+            };
+            let frontier = input.frontier_cells();
+            let towards = frontier_distances(&input, &mut CostCache::new(&grid), &frontier);
+            let complete: Vec<Vec<Option<f64>>> = free_space_cost_maps(&input, &mut CostCache::new(&grid))
+                .iter()
+                .zip(&team)
+                .map(|(m, r)| frontier.iter().map(|&c| r.cost_to(m, c)).collect())
+                .collect();
+            proptest::prop_assert_eq!(towards, complete);
+        }
     }
 }

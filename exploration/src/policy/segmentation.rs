@@ -244,13 +244,8 @@ impl Reach {
         match self {
             Self::Own(maps) => cells.iter().map(|&c| robot.cost_to(&maps[i], c).unwrap_or(f64::INFINITY)).collect(),
             Self::FromSegments { traversal, goals } => {
-                // Towards the segment's cells, until it has reached them all.
                 let mut search = GrowingCostMap::towards(traversal, robot.cell, &goals[k]);
-                let mut step = 1.0;
-                while search.radius() < f64::INFINITY && !cells.iter().all(|&c| search.cost(c).is_some()) {
-                    search.grow_to(search.radius() + step);
-                    step *= 2.0;
-                }
+                search.grow_to_reach(cells);
                 cells.iter().map(|&c| search.cost(c).unwrap_or(f64::INFINITY)).collect()
             }
         }
