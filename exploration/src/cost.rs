@@ -987,9 +987,15 @@ impl<'g> CostCache<'g> {
         sources.iter().map(|&s| self.cost_map(kind, s)).collect()
     }
 
-    /// How many cost maps were computed (not served from the cache).
+    /// How many cost maps were computed (not served from the cache),
+    /// counting searches towards goals that the cache does not hold.
     pub fn computed(&self) -> usize {
         self.computed
+    }
+
+    /// Counts `searches` made outside the cache ([`GrowingCostMap`]s).
+    pub fn count_searches(&mut self, searches: usize) {
+        self.computed += searches;
     }
 }
 

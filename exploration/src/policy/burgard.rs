@@ -15,7 +15,7 @@
 //! grid resolution (at the paper's 15 cm cells, V in cells is V/0.15).
 
 use super::registry::{BETA, MIN_FRONTIER_SIZE, OCC_MAX, PolicyDescriptor, SMOOTHING, SWITCH_UTILITY};
-use super::{Plan, PlanningInput, Policy, RobotView, Target, Towards, current_target, robot_cost_maps, towards_goals};
+use super::{Plan, PlanningInput, Policy, RobotView, Target, Towards, costs_to_cells, current_target, towards_goals};
 use crate::cost::{CostCache, GrowingCostMap, TraversalKind};
 use crate::grid::{Cell, CellClass, OccupancyGrid};
 use crate::visibility::line_of_sight;
@@ -82,11 +82,7 @@ impl Burgard {
         frontier: &[Cell],
     ) -> Vec<Vec<Option<f64>>> {
         let kinds: Vec<TraversalKind> = input.robots.iter().map(|r| self.traversal_kind(r)).collect();
-        robot_cost_maps(input, costs, &kinds)
-            .iter()
-            .zip(input.robots)
-            .map(|(map, robot)| frontier.iter().map(|&t| robot.cost_to(map, t)).collect())
-            .collect()
+        costs_to_cells(input, costs, &kinds, frontier)
     }
 
     /// Lines 3–7 of Algorithm 1 on precomputed values.
@@ -491,7 +487,14 @@ mod tests {
             let policy = Burgard { beta: f64::from(beta_tenths) / 10.0, occ_max: 0.6, smoothing_sigma_m: 1.0, switch_margin: 0.3 };
             let lazily = policy.plan(&input, &mut CostCache::new(&grid));
             let frontier = input.frontier_cells();
-            let values = policy.cost_values(&input, &mut CostCache::new(&grid), &frontier);
+            // The complete cost maps, not the searches towards the frontier.
+            let kinds: Vec<TraversalKind> = team.iter().map(|r| policy.traversal_kind(r)).collect();
+            let values: Vec<Vec<Option<f64>>> = crate::policy::robot_cost_maps(&input, &mut CostCache::new(&grid), &kinds)
+                .iter()
+                .zip(&team)
+                .map(|(map, robot)| frontier.iter().map(|&t| robot.cost_to(map, t)).collect())
+                .collect();
+            proptest::prop_assert_eq!(&policy.cost_values(&input, &mut CostCache::new(&grid), &frontier), &values);
             let fully = Plan::of(policy.assign(&input, &frontier, &values));
             proptest::prop_assert_eq!(lazily, fully);
         }

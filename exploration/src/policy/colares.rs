@@ -45,8 +45,8 @@
 #[cfg(test)]
 use super::CurrentTask;
 use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_UTILITY};
-use super::{Plan, PlanningInput, Policy, RobotView, Target, Towards, current_target, towards_goals};
-use crate::cost::{CostCache, GrowingCostMap, TraversalKind, in_parallel};
+use super::{Plan, PlanningInput, Policy, RobotView, Target, costs_to_cells, current_target};
+use crate::cost::{CostCache, TraversalKind};
 use crate::grid::{Cell, CellRect, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
 
 pub(super) const NAME: &str = "colares";
@@ -272,21 +272,14 @@ impl Policy for Colares {
 }
 
 /// Each robot's wavefront distance to every frontier cell (`None` where it
-/// cannot go or must not be sent): its search goes towards the frontier
-/// (A*) until it has reached every frontier cell, on the planner's threads.
+/// cannot go or must not be sent), searched towards the frontier.
 fn frontier_distances(
     input: &PlanningInput<'_>,
     costs: &mut CostCache<'_>,
     frontier: &[Cell],
 ) -> Vec<Vec<Option<f64>>> {
     let kinds: Vec<TraversalKind> = input.robots.iter().map(free_space_of).collect();
-    let towards = towards_goals(&kinds, costs, frontier);
-    let pairs: Vec<(&RobotView, &Towards)> = input.robots.iter().zip(&towards).collect();
-    in_parallel(&pairs, input.threads, |(robot, (traversal, goals))| {
-        let mut search = GrowingCostMap::towards(traversal, robot.cell, goals);
-        search.grow_to_reach(frontier);
-        frontier.iter().map(|&c| if robot.may_target(c) { search.cost(c) } else { None }).collect()
-    })
+    costs_to_cells(input, costs, &kinds, frontier)
 }
 
 /// The free-space traversal of the robot's footprint.

@@ -161,6 +161,27 @@ pub fn robot_cost_maps(
     input.robots.iter().zip(kinds).map(|(robot, kind)| costs.cost_map(*kind, robot.cell)).collect()
 }
 
+/// Each robot's path cost to each of `cells` over its traversal (of
+/// `kinds`, one per robot); `None` where it cannot go or must not be sent.
+/// The costs of complete searches, but each search goes towards `cells`
+/// (A*) and stops once it has reached them all, leaving out the cells
+/// behind the robot; on the planner's threads.
+pub fn costs_to_cells(
+    input: &PlanningInput<'_>,
+    costs: &mut CostCache<'_>,
+    kinds: &[crate::cost::TraversalKind],
+    cells: &[Cell],
+) -> Vec<Vec<Option<f64>>> {
+    let towards = towards_goals(kinds, costs, cells);
+    let pairs: Vec<(&RobotView, &Towards)> = input.robots.iter().zip(&towards).collect();
+    costs.count_searches(pairs.len());
+    crate::cost::in_parallel(&pairs, input.threads, |(robot, (traversal, goals))| {
+        let mut search = crate::cost::GrowingCostMap::towards(traversal, robot.cell, goals);
+        search.grow_to_reach(cells);
+        cells.iter().map(|&c| if robot.may_target(c) { search.cost(c) } else { None }).collect()
+    })
+}
+
 /// A traversal and its distance to the goals a search over it heads for.
 pub type Towards = (std::sync::Arc<crate::cost::TraversalMap>, std::sync::Arc<crate::cost::GoalDistance>);
 

@@ -34,8 +34,8 @@
 //! see docs/results.md) and c_j is the path length in metres.
 
 use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor};
-use super::{Bid, Capabilities, Plan, PlanningInput, Policy, RobotView, Target, free_space_cost_maps};
-use crate::cost::{CostCache, CostMap};
+use super::{Bid, Capabilities, Plan, PlanningInput, Policy, RobotView, Target, costs_to_cells};
+use crate::cost::{CostCache, CostMap, TraversalKind};
 use crate::grid::{Cell, CellRect, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
 
 pub(super) const NAME: &str = "simmons";
@@ -251,14 +251,17 @@ impl Policy for Simmons {
         if !bidders.is_empty() {
             let frontier = spaced(&input.frontier_cells(), self.spacing_m / resolution);
             let robots: Vec<RobotView> = bidders.iter().map(|&i| input.robots[i].clone()).collect();
-            let maps = free_space_cost_maps(&PlanningInput { robots: &robots, ..*input }, costs);
+            let kinds: Vec<TraversalKind> =
+                robots.iter().map(|r| TraversalKind::free_space(r.capabilities.footprint_radius_m)).collect();
+            let path_costs = costs_to_cells(&PlanningInput { robots: &robots, ..*input }, costs, &kinds, &frontier);
             let mut gains: std::collections::HashMap<(Cell, u64), (f64, CellRect)> = std::collections::HashMap::new();
-            for ((&i, robot), map) in bidders.iter().zip(&robots).zip(&maps) {
+            for ((&i, robot), row) in bidders.iter().zip(&robots).zip(&path_costs) {
                 let range = robot.capabilities.sensor_range_m / resolution;
                 computed[i] = frontier
                     .iter()
-                    .filter_map(|&target| {
-                        let cost = robot.cost_to(map, target)?;
+                    .zip(row)
+                    .filter_map(|(&target, &cost)| {
+                        let cost = cost?;
                         let (gain, region) =
                             *gains.entry((target, range.to_bits())).or_insert_with(|| gain_region(grid, target, range));
                         Some(Bid { target, path_cost_m: cost, information_gain: gain, gain_region: region })
@@ -454,7 +457,7 @@ mod tests {
     }
 
     /// §4.2: only idle robots without bids are bid for, so only they need
-    /// cost maps: a robot on its way to a task costs the replanning none.
+    /// searches: a robot on its way to a task costs the replanning none.
     #[test]
     fn only_robots_that_need_bids_get_cost_maps() {
         let grid = grid_from_picture(&[
