@@ -15,8 +15,8 @@
 //! grid resolution (at the paper's 15 cm cells, V in cells is V/0.15).
 
 use super::registry::{BETA, MIN_FRONTIER_SIZE, OCC_MAX, PolicyDescriptor, SMOOTHING, SWITCH_UTILITY};
-use super::{Plan, PlanningInput, Policy, RobotView, Target, Towards, costs_to_cells, current_target, towards_goals};
-use crate::cost::{CostCache, GrowingCostMap, TraversalKind};
+use super::{Plan, PlanningInput, Policy, RobotView, Target, costs_to_cells, current_target};
+use crate::cost::{CostCache, TraversalKind};
 use crate::grid::{Cell, CellClass, OccupancyGrid};
 use crate::visibility::line_of_sight;
 
@@ -85,18 +85,14 @@ impl Burgard {
         costs_to_cells(input, costs, &kinds, frontier)
     }
 
-    /// Lines 3–7 of Algorithm 1 on precomputed values.
+    /// Lines 3–7 of Algorithm 1 on V_t^i (`values`, per robot a row over
+    /// the frontier cells, `None` where unreachable or forbidden).
     pub(super) fn assign(
         &self,
         input: &PlanningInput<'_>,
         frontier: &[Cell],
         values: &[Vec<Option<f64>>],
     ) -> Vec<Option<Target>> {
-        self.select(input, frontier, &mut Computed(values))
-    }
-
-    /// Lines 3–7 of Algorithm 1, reading V_t^i from `values`.
-    fn select(&self, input: &PlanningInput<'_>, frontier: &[Cell], values: &mut impl Values) -> Vec<Option<Target>> {
         let grid = input.grid;
         let resolution = grid.frame().resolution;
         // Line 3: all utilities start at 1, less what the targets of robots
@@ -114,16 +110,13 @@ impl Burgard {
         // Line 4: while a robot is left without a target.
         loop {
             let best = self.best_pair(input, frontier, values, &utility, &targets);
-            if self.search_further(input, values, &targets, best.map(|(score, _, _)| score)) {
-                continue;
-            }
             // Robots that cannot reach any frontier cell stay without a target.
             let Some((score, i, t)) = best else { break };
             let chosen = frontier[t];
             targets[i] = Some(Target {
                 cell: chosen,
                 utility: score,
-                path_cost: values.row(i)[t].unwrap_or(0.0),
+                path_cost: values[i][t].unwrap_or(0.0),
                 gain_region: None,
             });
             // Line 6, Eq. 1: discount what the chosen target's sensor would cover.
@@ -140,12 +133,12 @@ impl Burgard {
     }
 
     /// Line 5: the pair (robot without a target, frontier cell) with the
-    /// highest U_t − β·V_t^i among the values known so far.
+    /// highest U_t − β·V_t^i.
     fn best_pair(
         &self,
         input: &PlanningInput<'_>,
         frontier: &[Cell],
-        values: &impl Values,
+        values: &[Vec<Option<f64>>],
         utility: &[f64],
         targets: &[Option<Target>],
     ) -> Option<(f64, usize, usize)> {
@@ -155,7 +148,7 @@ impl Burgard {
                 continue;
             }
             let current = current_target(robot);
-            for (t, v) in values.row(i).iter().enumerate() {
+            for (t, v) in values[i].iter().enumerate() {
                 let Some(v) = v else { continue };
                 let keep = if Some(frontier[t]) == current { self.switch_margin } else { 0.0 };
                 let score = utility[t] - self.beta * v + keep;
@@ -167,150 +160,6 @@ impl Burgard {
         }
         best
     }
-
-    /// Whether some robot without a target may have a better pair than
-    /// `best` among the cells its search has not reached; if so, those
-    /// searches go further (and line 5 is to be evaluated again). A cell
-    /// beyond radius r costs at least r, so its score is at most
-    /// 1 + margin − β·r (utilities never exceed 1): a search needs to pass
-    /// r = (1 + margin − best) / β, and without any pair yet, further.
-    fn search_further(
-        &self,
-        input: &PlanningInput<'_>,
-        values: &mut impl Values,
-        targets: &[Option<Target>],
-        best: Option<f64>,
-    ) -> bool {
-        let mut further = Vec::new();
-        for (i, robot) in input.robots.iter().enumerate() {
-            let radius = values.radius(i);
-            if targets[i].is_some() || radius == f64::INFINITY {
-                continue;
-            }
-            let margin = if robot.current.is_some() { self.switch_margin } else { 0.0 };
-            let needed = match best {
-                Some(best) if self.beta > 0.0 => (1.0 + margin - best) / self.beta,
-                Some(_) => f64::INFINITY,
-                // Nothing reached yet: widen by the distance at which cost
-                // outweighs a whole utility.
-                None => radius + 1.0 / self.beta,
-            };
-            // At the radius itself a score could tie with `best`, and ties
-            // are broken by robot and cell: the search must pass it.
-            if radius <= needed {
-                // A little further: fewer rounds as line 5's best falls. The
-                // search is guided to the frontier, so a wider radius costs
-                // a wider band along the way there, not a larger disc.
-                further.push((i, needed + GROWTH_SLACK_M));
-            }
-        }
-        values.grow(input.robots, &further, input.threads);
-        !further.is_empty()
-    }
-}
-
-/// How much further than line 5 needs a search goes when it must go
-/// further, metres: a few rounds fewer for little more searching.
-const GROWTH_SLACK_M: f64 = 0.5;
-
-/// Where Algorithm 1 reads V_t^i: per robot, a row over the frontier cells
-/// (`None` where unreachable, forbidden or not searched yet) and how far
-/// the robot's search has gone.
-trait Values {
-    fn row(&self, robot: usize) -> &[Option<f64>];
-    /// Every cell cheaper than this for the robot is in its row.
-    fn radius(&self, robot: usize) -> f64;
-    /// Takes each listed robot's search (index, radius) further, on up to
-    /// `threads` threads.
-    fn grow(&mut self, robots: &[RobotView], further: &[(usize, f64)], threads: usize);
-}
-
-/// Every robot's full cost map, computed beforehand.
-struct Computed<'a>(&'a [Vec<Option<f64>>]);
-
-impl Values for Computed<'_> {
-    fn row(&self, robot: usize) -> &[Option<f64>] {
-        &self.0[robot]
-    }
-
-    fn radius(&self, _: usize) -> f64 {
-        f64::INFINITY
-    }
-
-    fn grow(&mut self, _: &[RobotView], _: &[(usize, f64)], _: usize) {}
-}
-
-/// Each robot's search, taken only as far as line 5 needs: the same
-/// choices as [`Computed`], for the cells near the robots.
-struct Searched<'t> {
-    frontier: &'t [Cell],
-    /// Per robot, its search and its row.
-    searches: Vec<(GrowingCostMap<'t>, Vec<Option<f64>>)>,
-}
-
-impl<'t> Searched<'t> {
-    /// `goals` holds each robot's traversal's distance to the frontier
-    /// (one per traversal kind, shared), which orders its search.
-    fn new(traversals: &'t [Towards], robots: &[RobotView], frontier: &'t [Cell]) -> Self {
-        let searches = robots
-            .iter()
-            .zip(traversals)
-            .map(|(r, (t, goals))| {
-                let map = GrowingCostMap::towards(t, r.cell, goals);
-                let mut row = vec![None; frontier.len()];
-                fill(&mut row, &map, r, frontier);
-                (map, row)
-            })
-            .collect();
-        Self { frontier, searches }
-    }
-}
-
-/// Fills in the row's cells that the search has reached since.
-fn fill(row: &mut [Option<f64>], map: &GrowingCostMap<'_>, robot: &RobotView, frontier: &[Cell]) {
-    for (v, &t) in row.iter_mut().zip(frontier) {
-        if v.is_none() && robot.may_target(t) {
-            *v = map.cost(t);
-        }
-    }
-}
-
-impl<'t> Values for Searched<'t> {
-    fn row(&self, robot: usize) -> &[Option<f64>] {
-        &self.searches[robot].1
-    }
-
-    fn radius(&self, robot: usize) -> f64 {
-        self.searches[robot].0.radius()
-    }
-
-    fn grow(&mut self, robots: &[RobotView], further: &[(usize, f64)], threads: usize) {
-        let frontier = self.frontier;
-        // Dealt round-robin: neighbours in the list tend to need alike.
-        let lanes = threads.clamp(1, further.len().max(1));
-        let mut work: Vec<Vec<_>> = (0..lanes).map(|_| Vec::new()).collect();
-        let mut wanted = further.iter().peekable();
-        for (i, (map, row)) in self.searches.iter_mut().enumerate() {
-            if let Some(&(_, radius)) = wanted.next_if(|(j, _)| *j == i) {
-                work[i % lanes].push((map, row, &robots[i], radius));
-            }
-        }
-        let run = |lane: Vec<(&mut GrowingCostMap<'t>, &mut Vec<Option<f64>>, &RobotView, f64)>| {
-            for (map, row, robot, radius) in lane {
-                map.grow_to(radius);
-                fill(row, map, robot, frontier);
-            }
-        };
-        if lanes == 1 {
-            work.into_iter().for_each(run);
-        } else {
-            std::thread::scope(|scope| {
-                for lane in work {
-                    scope.spawn(|| run(lane));
-                }
-            });
-        }
-    }
 }
 
 impl Policy for Burgard {
@@ -318,14 +167,10 @@ impl Policy for Burgard {
         NAME
     }
 
-    /// Searches only as far from each robot as line 5 can choose (see
-    /// [`Burgard::search_further`]): the plan of the full cost maps.
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
-        let kinds: Vec<TraversalKind> = input.robots.iter().map(|r| self.traversal_kind(r)).collect();
-        let traversals = towards_goals(&kinds, costs, &frontier);
-        let mut values = Searched::new(&traversals, input.robots, &frontier);
-        Plan::of(self.select(input, &frontier, &mut values))
+        let values = self.cost_values(input, costs, &frontier);
+        Plan::of(self.assign(input, &frontier, &values))
     }
 }
 
@@ -442,12 +287,13 @@ mod tests {
 
     proptest::proptest! {
         #![proptest_config(crate::testing::seeded_proptest(256))]
-        /// Searching only as far as line 5 needs gives the plan of the full
-        /// cost maps: the same targets, utilities and costs, with robots
-        /// holding current targets (hysteresis), cells excluded for them,
-        /// targets reserved by robots out of reach, any β.
+        /// Searching from each robot towards the frontier gives V_t^i and
+        /// the plan of the complete cost maps: the same targets, utilities
+        /// and costs, with robots holding current targets (hysteresis),
+        /// cells excluded for them, targets reserved by robots out of
+        /// reach, any β.
         #[test]
-        fn searching_as_far_as_needed_plans_as_the_full_search(
+        fn searching_towards_the_frontier_plans_as_the_complete_search(
             width in 4u32..28,
             height in 4u32..28,
             seed in 0u64..1_000_000,
