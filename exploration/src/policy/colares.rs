@@ -435,9 +435,8 @@ mod tests {
             seed in 0u64..1_000_000,
             robots in 1usize..6,
         ) {
-            use crate::frontier::{FrontierMap, clusters};
             use crate::policy::free_space_cost_maps;
-            use crate::policy::testing::{random_known_rectangle, random_team};
+            use crate::policy::testing::{random_known_rectangle, random_team, with_input};
             use crate::rng::SplitMix64;
 
             let mut rng = SplitMix64::new(seed);
@@ -447,26 +446,17 @@ mod tests {
             for robot in team.iter_mut().filter(|_| rng.below(2) == 0) {
                 robot.capabilities.footprint_radius_m = 0.6;
             }
-            let frontier_map = FrontierMap::detect(&grid);
-            let clusters = clusters(&frontier_map, 1);
-            let bids = vec![Vec::new(); robots];
-            let input = PlanningInput {
-                grid: &grid,
-                clusters: &clusters,
-                robots: &team,
-                threads: 1 + (seed % 2) as usize,
-                bids: &bids,
-                seed: 0,
-                reserved: &[],
-                rooms: None,
-            };
-            let frontier = input.frontier_cells();
-            let towards = frontier_distances(&input, &mut CostCache::new(&grid), &frontier);
-            let complete: Vec<Vec<Option<f64>>> = free_space_cost_maps(&input, &mut CostCache::new(&grid))
-                .iter()
-                .zip(&team)
-                .map(|(m, r)| frontier.iter().map(|&c| r.cost_to(m, c)).collect())
-                .collect();
+            let (towards, complete) = with_input(&grid, &team, &vec![Vec::new(); robots], |input| {
+                let input = PlanningInput { threads: 1 + (seed % 2) as usize, ..*input };
+                let frontier = input.frontier_cells();
+                let towards = frontier_distances(&input, &mut CostCache::new(&grid), &frontier);
+                let complete: Vec<Vec<Option<f64>>> = free_space_cost_maps(&input, &mut CostCache::new(&grid))
+                    .iter()
+                    .zip(&team)
+                    .map(|(m, r)| frontier.iter().map(|&c| r.cost_to(m, c)).collect())
+                    .collect();
+                (towards, complete)
+            });
             proptest::prop_assert_eq!(towards, complete);
         }
     }

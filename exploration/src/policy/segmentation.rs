@@ -339,7 +339,6 @@ mod tests {
             seed in 0u64..1_000_000,
             robots in 1usize..6,
         ) {
-            use crate::frontier::{FrontierMap, clusters};
             use crate::policy::testing::{random_known_rectangle, random_team};
             use crate::rng::SplitMix64;
 
@@ -347,27 +346,15 @@ mod tests {
             let (grid, free) = random_known_rectangle(width, height, &mut rng, |rng| if rng.below(6) == 0 { 95 } else { 10 });
             proptest::prop_assume!(!free.is_empty());
             let team = random_team(robots, &free, &free, false, &mut rng);
-            let frontier_map = FrontierMap::detect(&grid);
-            let clusters = clusters(&frontier_map, 1);
-            let bids = vec![Vec::new(); robots];
-            let input = PlanningInput {
-                grid: &grid,
-                clusters: &clusters,
-                robots: &team,
-                threads: 1,
-                bids: &bids,
-                seed: 0,
-                reserved: &[],
-                rooms: None,
-            };
-            let segmentation = segment(&grid, &input.frontier_cells(), 1.0, 4);
+            let frontier = with_input(&grid, &team, &[], |input| input.frontier_cells());
+            let segmentation = segment(&grid, &frontier, 1.0, 4);
             let open: Vec<&Segment> = segmentation.segments.iter().filter(|s| !s.frontier.is_empty()).collect();
             let mut costs = CostCache::new(&grid);
             let traversal = costs.traversal(TraversalKind::free_space(team[0].capabilities.footprint_radius_m));
             proptest::prop_assume!(team.iter().all(|r| GoalDistance::starts_inside(&traversal, r.cell)));
             let goals = open.iter().map(|s| GoalDistance::new(&traversal, &s.frontier)).collect();
             let from_segments = Reach::FromSegments { traversal, goals };
-            let own = Reach::Own(free_space_cost_maps(&input, &mut costs));
+            let own = Reach::Own(with_input(&grid, &team, &[], |input| free_space_cost_maps(input, &mut costs)));
             for (i, robot) in team.iter().enumerate() {
                 for (k, s) in open.iter().enumerate() {
                     let (a, b) = (from_segments.nearest(i, robot, k, s), own.nearest(i, robot, k, s));
