@@ -467,8 +467,7 @@ impl TraversalMap {
     }
 
     fn inbound(&self) -> Inbound<'_> {
-        let (orthogonal, diagonal) = self.step_lengths();
-        Inbound { costs: &self.padded, bits: &self.passable_bits, stride: self.window.stride, orthogonal, diagonal }
+        Inbound(self.weighted())
     }
 
     fn weighted(&self) -> Weighted<'_> {
@@ -503,6 +502,7 @@ trait Neighbourhood {
 }
 
 /// Per-cell costs per metre.
+#[derive(Clone, Copy)]
 struct Weighted<'a> {
     costs: &'a [f32],
     bits: &'a [u64],
@@ -560,36 +560,30 @@ impl Neighbourhood for Uniform<'_> {
     }
 }
 
-/// The steps into a cell rather than out of it: relaxing from `i` offers
-/// each neighbour `j` the cost of the step j → i (entering `i`). A search
-/// over it from a set of goals gives every cell its cost to the nearest
-/// goal, on the same steps and corner rule as the forward searches.
-struct Inbound<'a> {
-    costs: &'a [f32],
-    bits: &'a [u64],
-    stride: usize,
-    orthogonal: f32,
-    diagonal: f32,
-}
+/// The steps of [`Weighted`] taken backwards: relaxing from `i` offers each
+/// neighbour `j` the cost of the step j → i (entering `i`). A search over
+/// it from a set of goals gives every cell its cost to the nearest goal, on
+/// the same steps and corner rule as the forward searches.
+struct Inbound<'a>(Weighted<'a>);
 
 impl Neighbourhood for Inbound<'_> {
     #[inline(always)]
     fn neighbours<const CUT: bool>(&self, i: usize, here: f32, mut improve: impl FnMut(usize, f32)) {
+        let Weighted { costs, bits, stride: s, orthogonal, diagonal } = self.0;
         // Nothing enters an impassable cell. A passable one is off the
         // window's border, so its neighbours are in bounds.
-        if !bit(self.bits, i) {
+        if !bit(bits, i) {
             return;
         }
-        let s = self.stride;
-        let straight = here + self.orthogonal * self.costs[i];
+        let straight = here + orthogonal * costs[i];
         for j in [i + 1, i - 1, i + s, i - s] {
             improve(j, straight);
         }
-        let slanted = here + self.diagonal * self.costs[i];
+        let slanted = here + diagonal * costs[i];
         for (j, a, b) in
             [(i + s + 1, i + 1, i + s), (i + s - 1, i - 1, i + s), (i - s + 1, i + 1, i - s), (i - s - 1, i - 1, i - s)]
         {
-            if CUT || (bit(self.bits, a) && bit(self.bits, b)) {
+            if CUT || (bit(bits, a) && bit(bits, b)) {
                 improve(j, slanted);
             }
         }

@@ -436,11 +436,11 @@ mod tests {
             robots in 1usize..6,
         ) {
             use crate::policy::free_space_cost_maps;
-            use crate::policy::testing::{random_known_rectangle, random_team, with_input};
+            use crate::policy::testing::{random_team, random_walled_rectangle, with_input};
             use crate::rng::SplitMix64;
 
             let mut rng = SplitMix64::new(seed);
-            let (grid, free) = random_known_rectangle(width, height, &mut rng, |rng| if rng.below(6) == 0 { 95 } else { 10 });
+            let (grid, free) = random_walled_rectangle(width, height, &mut rng);
             proptest::prop_assume!(!free.is_empty());
             let mut team = random_team(robots, &free, &free, true, &mut rng);
             for robot in team.iter_mut().filter(|_| rng.below(2) == 0) {

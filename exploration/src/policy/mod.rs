@@ -502,6 +502,16 @@ pub(crate) mod testing {
         (grid, free)
     }
 
+    /// [`random_known_rectangle`] of free cells (P(occ) 10 %) and walls,
+    /// one cell in six.
+    pub fn random_walled_rectangle(
+        width: u32,
+        height: u32,
+        rng: &mut crate::rng::SplitMix64,
+    ) -> (OccupancyGrid, Vec<Cell>) {
+        random_known_rectangle(width, height, rng, |rng| if rng.below(6) == 0 { 95 } else { 10 })
+    }
+
     /// `robots` robots on random cells of `free`; half of them hold a
     /// current target drawn from `targets`, and with `exclusions` a third
     /// must not be sent within a cell of some free cell.

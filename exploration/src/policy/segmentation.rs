@@ -339,11 +339,11 @@ mod tests {
             seed in 0u64..1_000_000,
             robots in 1usize..6,
         ) {
-            use crate::policy::testing::{random_known_rectangle, random_team};
+            use crate::policy::testing::{random_team, random_walled_rectangle};
             use crate::rng::SplitMix64;
 
             let mut rng = SplitMix64::new(seed);
-            let (grid, free) = random_known_rectangle(width, height, &mut rng, |rng| if rng.below(6) == 0 { 95 } else { 10 });
+            let (grid, free) = random_walled_rectangle(width, height, &mut rng);
             proptest::prop_assume!(!free.is_empty());
             let team = random_team(robots, &free, &free, false, &mut rng);
             let frontier = with_input(&grid, &team, &[], |input| input.frontier_cells());
