@@ -43,27 +43,33 @@ impl Policy for Unassigned {
 
     /// Each robot's search goes only as far as its choice needs (see
     /// [`Unassigned::choose`]): first on the planner's threads, as if no
-    /// cell were taken, then further where the choices of robots before it
-    /// took its cell.
+    /// cell were taken, keeping only what it reached; then, in id order, a
+    /// robot whose choice the robots before it took searches again, further.
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
         let kinds: Vec<TraversalKind> =
             input.robots.iter().map(|r| TraversalKind::free_space(r.capabilities.footprint_radius_m)).collect();
         let traversals = towards_goals(&kinds, costs, &frontier);
         let pairs: Vec<(&RobotView, &Towards)> = input.robots.iter().zip(&traversals).collect();
-        let mut searches = in_parallel(&pairs, input.threads, |(robot, (traversal, goals))| {
+        let search = |robot: &RobotView, (traversal, goals): &Towards, taken: &[Cell]| {
             let mut search = GrowingCostMap::towards(traversal, robot.cell, goals);
-            self.choose(robot, &mut search, &frontier, &[]);
-            search
-        });
+            let choice = self.choose(robot, &mut search, &frontier, taken);
+            (choice, Reached::of(robot, &search, &frontier))
+        };
+        // Only what each search reached is kept: a search holds a label per
+        // known cell, too much to keep one per robot of a large team.
+        let first: Vec<Reached> = in_parallel(&pairs, input.threads, |(robot, towards)| search(robot, towards, &[]).1);
         let mut order: Vec<usize> = (0..input.robots.len()).collect();
         order.sort_by_key(|&i| input.robots[i].id);
         let mut taken: Vec<Cell> = Vec::new();
         let mut targets = vec![None; input.robots.len()];
         for i in order {
-            let Some((cell, cost)) = self.choose(&input.robots[i], &mut searches[i], &frontier, &taken) else {
-                continue;
+            let robot = &input.robots[i];
+            let choice = match self.decide(robot, &first[i], &taken) {
+                Ok(choice) => choice,
+                Err(_) => search(robot, pairs[i].1, &taken).0,
             };
+            let Some((cell, cost)) = choice else { continue };
             taken.push(cell);
             targets[i] = Some(Target { cell, utility: -cost, path_cost: cost, gain_region: None });
         }
@@ -71,12 +77,26 @@ impl Policy for Unassigned {
     }
 }
 
+/// What a robot's search has reached: the frontier cells it may be sent
+/// to with their costs, and the radius below which nothing is missing.
+struct Reached {
+    cells: Vec<(Cell, f64)>,
+    radius: f64,
+}
+
+impl Reached {
+    fn of(robot: &RobotView, search: &GrowingCostMap<'_>, frontier: &[Cell]) -> Self {
+        let cells =
+            frontier.iter().filter(|&&c| robot.may_target(c)).filter_map(|&c| Some((c, search.cost(c)?))).collect();
+        Self { cells, radius: search.radius() }
+    }
+}
+
 impl Unassigned {
     /// The robot's choice: the closest frontier cell not `taken`, or its
     /// current target while that is free and not farther by more than the
     /// margin; the closest taken one when every reachable cell is taken.
-    /// Searches further until the choice is sure: a cell the search has not
-    /// reached costs at least its radius.
+    /// Searches further until the choice is sure.
     fn choose(
         &self,
         robot: &RobotView,
@@ -88,43 +108,59 @@ impl Unassigned {
         // frontier cell (where a search towards the frontier starts), then
         // doubling that step.
         let mut step = 1.0f64;
-        let margin = if current_target(robot).is_some_and(|c| !taken.contains(&c)) { self.switch_margin } else { 0.0 };
         loop {
-            let reached: Vec<(Cell, f64)> =
-                frontier.iter().filter(|&&c| robot.may_target(c)).filter_map(|&c| Some((c, search.cost(c)?))).collect();
-            // Ties go to the first cell in row-major order: deterministic.
-            let closest = |free_only: bool| {
-                reached
-                    .iter()
-                    .copied()
-                    .filter(|(cell, _)| !free_only || !taken.contains(cell))
-                    .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.y.cmp(&b.0.y)).then(a.0.x.cmp(&b.0.x)))
+            let reached = Reached::of(robot, search, frontier);
+            let best = match self.decide(robot, &reached, taken) {
+                Ok(choice) => return choice,
+                Err(best) => best,
             };
-            let best = closest(true);
-            let everything = search.radius() == f64::INFINITY;
-            // Sure when nothing unreached can be closer or tie, nor be a
-            // current target within the margin (for a robot that holds one).
-            let sure = best.is_some_and(|(_, cost)| cost + margin < search.radius());
-            if !(sure || everything) {
-                let mut radius = search.radius() + step;
-                step *= 2.0;
-                if let Some((_, cost)) = best {
-                    // Just past it: a search towards the frontier pays for
-                    // every metre of slack with a wider band.
-                    radius = radius.min(cost + margin + 1e-3);
-                }
-                search.grow_to(radius);
-                continue;
+            let mut radius = reached.radius + step;
+            step *= 2.0;
+            if let Some(cost) = best {
+                // Just past it: a search towards the frontier pays for
+                // every metre of slack with a wider band.
+                radius = radius.min(cost + self.margin(robot, taken) + 1e-3);
             }
-            let best = best.or_else(|| closest(false))?;
-            // Hysteresis: keep the current target while it is free and not
-            // farther than the best by more than the margin.
-            let kept = current_target(robot)
-                .filter(|c| !taken.contains(c))
-                .and_then(|c| reached.iter().copied().find(|(cell, _)| *cell == c))
-                .filter(|(_, cost)| cost - self.switch_margin <= best.1);
-            return Some(kept.unwrap_or(best));
+            search.grow_to(radius);
         }
+    }
+
+    /// The choice [`Self::choose`] makes from what a search `reached`, or,
+    /// when a cell not reached yet could still change it, the cost of the
+    /// closest free cell reached so far. A cell not reached costs at least
+    /// the radius.
+    fn decide(&self, robot: &RobotView, reached: &Reached, taken: &[Cell]) -> Result<Option<(Cell, f64)>, Option<f64>> {
+        // Ties go to the first cell in row-major order: deterministic.
+        let closest = |free_only: bool| {
+            reached
+                .cells
+                .iter()
+                .copied()
+                .filter(|(cell, _)| !free_only || !taken.contains(cell))
+                .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.y.cmp(&b.0.y)).then(a.0.x.cmp(&b.0.x)))
+        };
+        let best = closest(true);
+        let everything = reached.radius == f64::INFINITY;
+        // Sure when nothing unreached can be closer or tie, nor be a
+        // current target within the margin (for a robot that holds one).
+        let sure = best.is_some_and(|(_, cost)| cost + self.margin(robot, taken) < reached.radius);
+        if !(sure || everything) {
+            return Err(best.map(|(_, cost)| cost));
+        }
+        let Some(best) = best.or_else(|| closest(false)) else { return Ok(None) };
+        // Hysteresis: keep the current target while it is free and not
+        // farther than the best by more than the margin.
+        let kept = current_target(robot)
+            .filter(|c| !taken.contains(c))
+            .and_then(|c| reached.cells.iter().copied().find(|(cell, _)| *cell == c))
+            .filter(|(_, cost)| cost - self.switch_margin <= best.1);
+        Ok(Some(kept.unwrap_or(best)))
+    }
+
+    /// How far past its closest cell a robot's search must go: the
+    /// hysteresis margin for a robot whose current target is still free.
+    fn margin(&self, robot: &RobotView, taken: &[Cell]) -> f64 {
+        if current_target(robot).is_some_and(|c| !taken.contains(&c)) { self.switch_margin } else { 0.0 }
     }
 }
 
