@@ -449,6 +449,17 @@ impl TraversalMap {
         (starts, stranded)
     }
 
+    /// The window index a search from `cell` starts at, if it starts inside
+    /// the window (elsewhere a robot reaches only its own cell).
+    fn start_index(&self, cell: Cell) -> Option<usize> {
+        self.window.start_index(cell).filter(|_| self.frame.contains(cell))
+    }
+
+    /// Whether a search from `cell` starts inside the window.
+    pub fn starts_inside(&self, cell: Cell) -> bool {
+        self.start_index(cell).is_some()
+    }
+
     /// Whether every passable cell costs the same per metre.
     fn is_uniform(&self) -> bool {
         self.step_range.0 == self.step_range.1
@@ -601,15 +612,15 @@ fn settle<N: Neighbourhood, const CUT: bool>(
     steps: (f32, f32),
 ) {
     match Buckets::fitting(starts, steps) {
-        Some(mut b) if labels.is_empty() => b.drain::<N, CUT, false>(n, cost, labels, usize::MAX),
-        Some(mut b) => b.drain::<N, CUT, true>(n, cost, labels, usize::MAX),
+        Some(mut b) if labels.is_empty() => b.drain::<N, CUT, false>(n, cost, labels),
+        Some(mut b) => b.drain::<N, CUT, true>(n, cost, labels),
         None => heap::<N, CUT>(n, cost, labels, starts),
     }
 }
 
 /// A ring of buckets as wide as the cheapest step (Dial 1969), kept between
-/// drains so that a search can stop at a radius and resume later (see
-/// [`GrowingCostMap`]).
+/// drains so that a search towards goals can stop at a radius and resume
+/// later (see [`GrowingCostMap`]).
 #[derive(Debug)]
 struct Buckets {
     rings: Vec<Vec<u32>>,
@@ -668,17 +679,16 @@ impl Buckets {
         if buckets.is_finite() && buckets < (usize::MAX / 2) as f32 { buckets as usize + 1 } else { usize::MAX }
     }
 
-    /// Settles the buckets before `end` (all of them for `usize::MAX`).
+    /// Settles every bucket.
     fn drain<N: Neighbourhood, const CUT: bool, const LABELLED: bool>(
         &mut self,
         n: &N,
         cost: &mut [f32],
         labels: &mut [u32],
-        end: usize,
     ) {
         let Self { rings, slot_mask, per_bucket, current, pending, batch } = self;
         let (slot_mask, per_bucket) = (*slot_mask, *per_bucket);
-        while *pending > 0 && *current < end {
+        while *pending > 0 {
             let slot = *current & slot_mask;
             while !rings[slot].is_empty() {
                 std::mem::swap(batch, &mut rings[slot]);

@@ -1,10 +1,10 @@
 //! A cost map that is searched only as far as its user needs.
 //!
-//! Policies that score a target by a bounded gain less a weighted path cost
-//! (Burgard et al. 2005, Algorithm 1: U_t − β·V_t^i with U_t ≤ 1) never pick
-//! a target whose cost alone rules it out. A [`GrowingCostMap`] settles
-//! labels up to a radius, answers for the cells inside it, and resumes where
-//! it stopped when asked for more; its answers are the full cost map's.
+//! A policy that needs a robot's costs to frontier cells only (the nearest
+//! one, or all of them) needs no cost beyond them. A [`GrowingCostMap`]
+//! settles labels up to a radius, answers for the cells inside it, and
+//! resumes where it stopped when asked for more; its answers are the full
+//! cost map's.
 //!
 //! Towards goals (frontier cells), the search is ordered by cost plus the
 //! [`GoalDistance`] still to go (A*, Hart, Nilsson & Raphael 1968, with the
@@ -30,7 +30,7 @@ impl GoalDistance {
         let (starts, _) = traversal.seed(goals, &mut cost, &mut []);
         let inbound = traversal.inbound();
         match Buckets::fitting(&starts, traversal.step_bounds()) {
-            Some(mut b) => b.drain::<_, false, false>(&inbound, &mut cost, &mut [], usize::MAX),
+            Some(mut b) => b.drain::<_, false, false>(&inbound, &mut cost, &mut []),
             None => heap::<_, false>(&inbound, &mut cost, &mut [], &starts),
         }
         Self { cost }
@@ -40,47 +40,29 @@ impl GoalDistance {
     /// this was computed over), when a search from `cell` reaches one; `None`
     /// for a cell no search starts from (off the traversal's window).
     pub fn cost(&self, traversal: &TraversalMap, cell: Cell) -> Option<f64> {
-        let i = traversal.window.start_index(cell).filter(|_| traversal.frame.contains(cell))?;
-        let c = self.cost[i];
+        let c = self.cost[traversal.start_index(cell)?];
         c.is_finite().then_some(f64::from(c))
-    }
-
-    /// Whether a search from `cell` over `traversal` starts inside its
-    /// window (elsewhere a robot reaches only its own cell).
-    pub fn starts_inside(traversal: &TraversalMap, cell: Cell) -> bool {
-        traversal.frame.contains(cell) && traversal.window.start_index(cell).is_some()
     }
 }
 
-/// A cost map from one source, settled up to [`GrowingCostMap::radius`].
+/// A search from one source towards the goals of a [`GoalDistance`],
+/// settled up to [`GrowingCostMap::radius`].
 #[derive(Debug)]
 pub struct GrowingCostMap<'t> {
     traversal: &'t TraversalMap,
     /// Over the traversal's window; final below the radius.
     cost: Vec<f32>,
-    /// The paused search; `None` once every reachable cell is settled.
-    search: Option<Buckets>,
+    /// The paused search and the cells whose present cost is still to be
+    /// expanded; `None` once every cell it can reach is settled.
+    search: Option<(Buckets, Vec<u64>)>,
     /// The source, when it lies outside the window (it reaches itself only).
     stranded: Option<Cell>,
-    /// A guided search: the estimate it is ordered by, and the cells whose
-    /// present cost is still to be expanded.
-    towards: Option<(&'t GoalDistance, Vec<u64>)>,
+    /// The estimate the search is ordered by; `None` when `cost` is
+    /// complete (the fallback where buckets cannot hold the steps).
+    goals: Option<&'t GoalDistance>,
 }
 
 impl<'t> GrowingCostMap<'t> {
-    /// The search from `source`, nothing settled yet but the source.
-    pub fn new(traversal: &'t TraversalMap, source: Cell) -> Self {
-        let mut cost = vec![f32::INFINITY; traversal.padded.len()];
-        let (starts, stranded) = traversal.seed(&[source], &mut cost, &mut []);
-        let stranded = stranded.first().map(|&(cell, _)| cell);
-        let search = if starts.is_empty() { None } else { Buckets::fitting(&starts, traversal.step_bounds()) };
-        if search.is_none() && !starts.is_empty() {
-            // Step costs too far apart for buckets: one full search with the heap.
-            heap::<_, false>(&traversal.weighted(), &mut cost, &mut [], &starts);
-        }
-        Self { traversal, cost, search, stranded, towards: None }
-    }
-
     /// The search from `source` towards the goals of `goals` (computed over
     /// the same traversal): it answers for the cells on the way to goals
     /// cheaper than its radius, goals included, and for no others.
@@ -88,50 +70,39 @@ impl<'t> GrowingCostMap<'t> {
         let mut cost = vec![f32::INFINITY; traversal.padded.len()];
         let (starts, stranded) = traversal.seed(&[source], &mut cost, &mut []);
         let stranded = stranded.first().map(|&(cell, _)| cell);
-        let Some(&start) = starts.first() else {
-            return Self { traversal, cost, search: None, stranded, towards: None };
-        };
-        let estimate = goals.cost[start];
-        if !estimate.is_finite() {
-            // No goal can be reached from here: nothing to search.
-            return Self { traversal, cost, search: None, stranded, towards: Some((goals, Vec::new())) };
-        }
-        let mut open = vec![0u64; cost.len().div_ceil(64)];
-        open[start / 64] |= 1 << (start % 64);
-        match Buckets::guided(start, estimate, traversal.step_bounds()) {
-            Some(search) => Self { traversal, cost, search: Some(search), stranded, towards: Some((goals, open)) },
+        let mut map = Self { traversal, cost, search: None, stranded, goals: Some(goals) };
+        // No goal can be reached from a source off the window or cut off from them.
+        let Some(&start) = starts.first().filter(|&&i| goals.cost[i].is_finite()) else { return map };
+        match Buckets::guided(start, goals.cost[start], traversal.step_bounds()) {
+            Some(search) => {
+                let mut open = vec![0u64; map.cost.len().div_ceil(64)];
+                open[start / 64] |= 1 << (start % 64);
+                map.search = Some((search, open));
+            }
             None => {
-                // Step costs too far apart for buckets: the full search.
-                heap::<_, false>(&traversal.weighted(), &mut cost, &mut [], &starts);
-                Self { traversal, cost, search: None, stranded, towards: None }
+                // Step costs too far apart for buckets: the complete search.
+                heap::<_, false>(&traversal.weighted(), &mut map.cost, &mut [], &starts);
+                map.goals = None;
             }
         }
+        map
     }
 
-    /// Every cell cheaper than this is answered by [`Self::cost`] (for a
-    /// search towards goals: every goal, and every cell whose cost plus its
-    /// distance to the nearest goal is below it); every goal it does not
-    /// answer costs at least this, or is unreachable. Infinite once the
-    /// search has settled every cell it can.
+    /// Every goal cheaper than this, and every cell whose cost plus its
+    /// distance to the nearest goal is below it, is answered by
+    /// [`Self::cost`]; every goal it does not answer costs at least this, or
+    /// is unreachable. Infinite once the search has settled every cell it can.
     pub fn radius(&self) -> f64 {
-        self.search.as_ref().map_or(f64::INFINITY, |s| f64::from(s.radius()))
+        self.search.as_ref().map_or(f64::INFINITY, |(s, _)| f64::from(s.radius()))
     }
 
     /// Resumes the search until [`Self::radius`] is at least `radius`
     /// (everything, for an infinite one), and in any case a step further.
     pub fn grow_to(&mut self, radius: f64) {
-        let Some(search) = &mut self.search else { return };
+        let (Some((search, open)), Some(goals)) = (&mut self.search, self.goals) else { return };
         // At least one bucket more, so that every call makes progress.
         let end = search.end_for(radius as f32).max(search.current + 1);
-        match &mut self.towards {
-            Some((goals, open)) => {
-                search.drain_guided(&self.traversal.weighted(), &mut self.cost, &goals.cost, open, end)
-            }
-            None if self.traversal.is_uniform() => {
-                search.drain::<_, false, false>(&self.traversal.uniform(), &mut self.cost, &mut [], end)
-            }
-            None => search.drain::<_, false, false>(&self.traversal.weighted(), &mut self.cost, &mut [], end),
-        }
+        search.drain_guided(&self.traversal.weighted(), &mut self.cost, &goals.cost, open, end);
         if search.exhausted() {
             self.search = None;
         }
@@ -148,8 +119,7 @@ impl<'t> GrowingCostMap<'t> {
     }
 
     /// The cost of reaching `cell`, if it is below the radius; `None` for a
-    /// cell beyond it or unreachable (or, searching towards goals, off the
-    /// way to every goal within the radius).
+    /// cell beyond it, unreachable, or off the way to every goal within it.
     pub fn cost(&self, cell: Cell) -> Option<f64> {
         if !self.traversal.frame.contains(cell) {
             return None;
@@ -159,10 +129,7 @@ impl<'t> GrowingCostMap<'t> {
         }
         let i = self.traversal.window.index(cell)?;
         let c = self.cost[i];
-        let key = match &self.towards {
-            Some((goals, _)) => c + goals.cost[i],
-            None => c,
-        };
+        let key = c + self.goals.map_or(0.0, |g| g.cost[i]);
         (f64::from(key) < self.radius() && c.is_finite()).then_some(f64::from(c))
     }
 }
@@ -171,7 +138,14 @@ impl<'t> GrowingCostMap<'t> {
 mod tests {
     use super::*;
     use crate::cost::cost_map;
+    use crate::grid::OccupancyGrid;
     use crate::grid::testing::grid_from_picture;
+
+    /// Every cell a goal: the search is Dijkstra's, outwards from the source.
+    fn every_cell(grid: &OccupancyGrid, traversal: &TraversalMap) -> GoalDistance {
+        let cells: Vec<Cell> = (0..grid.frame().len()).map(|i| grid.frame().cell(i)).collect();
+        GoalDistance::new(traversal, &cells)
+    }
 
     #[test]
     fn it_answers_inside_its_radius_and_grows_to_the_full_map() {
@@ -183,7 +157,8 @@ mod tests {
         let traversal = TraversalMap::free_space(&grid, 0.0);
         let source = Cell::new(0, 1);
         let full = cost_map(&traversal, &[source]);
-        let mut growing = GrowingCostMap::new(&traversal, source);
+        let everywhere = every_cell(&grid, &traversal);
+        let mut growing = GrowingCostMap::towards(&traversal, source, &everywhere);
         growing.grow_to(3.0);
         let radius = growing.radius();
         assert!((3.0..4.0).contains(&radius), "radius {radius}");
@@ -211,17 +186,18 @@ mod tests {
             "####", //
         ]);
         let traversal = TraversalMap::free_space(&grid, 0.0);
-        let mut growing = GrowingCostMap::new(&traversal, Cell::new(0, 0));
+        let everywhere = every_cell(&grid, &traversal);
+        let mut growing = GrowingCostMap::towards(&traversal, Cell::new(0, 0), &everywhere);
         growing.grow_to(100.0);
         assert_eq!(growing.cost(Cell::new(0, 0)), Some(0.0));
         assert_eq!(growing.cost(Cell::new(0, 4)), None);
-        let off = GrowingCostMap::new(&traversal, Cell::new(-5, 0));
+        let off = GrowingCostMap::towards(&traversal, Cell::new(-5, 0), &everywhere);
         assert_eq!(off.cost(Cell::new(-5, 0)), None);
     }
 
     /// A room with the robot at one end and the only goal at the other:
-    /// the search towards it touches the cells along the way, the plain
-    /// search every cell as near as the goal.
+    /// the search towards it touches the cells along the way, a search
+    /// towards every cell (Dijkstra's) every cell as near as the goal.
     #[test]
     fn towards_a_goal_only_the_way_there_is_searched() {
         let row = ".".repeat(60);
@@ -231,7 +207,8 @@ mod tests {
         let (source, goal) = (Cell::new(0, 20), Cell::new(59, 20));
         let goals = GoalDistance::new(&traversal, &[goal]);
         let mut guided = GrowingCostMap::towards(&traversal, source, &goals);
-        let mut plain = GrowingCostMap::new(&traversal, source);
+        let everywhere = every_cell(&grid, &traversal);
+        let mut plain = GrowingCostMap::towards(&traversal, source, &everywhere);
         let full = cost_map(&traversal, &[source]).cost(goal).unwrap();
         for search in [&mut guided, &mut plain] {
             search.grow_to(full + 0.05);

@@ -218,7 +218,7 @@ impl Reach {
         let one_kind = kinds.windows(2).all(|w| w[0] == w[1]);
         if let Some(&kind) = kinds.first().filter(|_| one_kind && open.len() < input.robots.len()) {
             let traversal = costs.traversal(kind);
-            let plain = |r: &RobotView| r.excluded.is_empty() && GoalDistance::starts_inside(&traversal, r.cell);
+            let plain = |r: &RobotView| r.excluded.is_empty() && traversal.starts_inside(r.cell);
             if input.robots.iter().all(plain) {
                 let goals = in_parallel(open, input.threads, |s| GoalDistance::new(&traversal, &s.frontier));
                 return Self::FromSegments { traversal, goals };
@@ -351,7 +351,7 @@ mod tests {
             let open: Vec<&Segment> = segmentation.segments.iter().filter(|s| !s.frontier.is_empty()).collect();
             let mut costs = CostCache::new(&grid);
             let traversal = costs.traversal(TraversalKind::free_space(team[0].capabilities.footprint_radius_m));
-            proptest::prop_assume!(team.iter().all(|r| GoalDistance::starts_inside(&traversal, r.cell)));
+            proptest::prop_assume!(team.iter().all(|r| traversal.starts_inside(r.cell)));
             let goals = open.iter().map(|s| GoalDistance::new(&traversal, &s.frontier)).collect();
             let from_segments = Reach::FromSegments { traversal, goals };
             let own = Reach::Own(with_input(&grid, &team, &[], |input| free_space_cost_maps(input, &mut costs)));

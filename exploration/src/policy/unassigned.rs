@@ -218,7 +218,7 @@ mod tests {
             robots in 1usize..8,
             margin_tenths in 0u32..30,
         ) {
-            use crate::cost::{CostCache, GrowingCostMap, TraversalKind};
+            use crate::cost::{CostCache, TraversalKind, cost_map};
             use crate::frontier::{FrontierMap, clusters};
             use crate::policy::testing::{random_known_rectangle, random_team};
             use crate::policy::{Plan, PlanningInput, Policy, Target};
@@ -248,9 +248,10 @@ mod tests {
             let frontier = input.frontier_cells();
             let mut taken = Vec::new();
             let fully = Plan::of(team.iter().map(|r| {
-                let mut search = GrowingCostMap::new(&traversal, r.cell);
-                search.grow_to(f64::INFINITY);
-                let (cell, cost) = policy.choose(r, &mut search, &frontier, &taken)?;
+                let map = cost_map(&traversal, &[r.cell]);
+                let cells = frontier.iter().filter(|&&c| r.may_target(c)).filter_map(|&c| Some((c, map.cost(c)?))).collect();
+                let complete = super::Reached { cells, radius: f64::INFINITY };
+                let (cell, cost) = policy.decide(r, &complete, &taken).ok()??;
                 taken.push(cell);
                 Some(Target { cell, utility: -cost, path_cost: cost, gain_region: None })
             }).collect());
