@@ -61,8 +61,7 @@ pub fn remaining_frontier(
     costs: &mut CostCache<'_>,
     threads: usize,
 ) -> RemainingFrontier {
-    let kinds: Vec<TraversalKind> =
-        robots.iter().map(|r| TraversalKind::free_space(r.capabilities.footprint_radius_m)).collect();
+    let kinds: Vec<TraversalKind> = robots.iter().map(RobotView::free_space).collect();
     let mut by_kind: std::collections::BTreeMap<TraversalKind, Vec<Cell>> = Default::default();
     for (robot, kind) in robots.iter().zip(&kinds) {
         by_kind.entry(*kind).or_default().push(robot.cell);

@@ -237,7 +237,7 @@ impl Policy for Colares {
                     // the way the search towards the frontier went.
                     let cost = match frontier.iter().position(|&f| f == c.target) {
                         Some(t) => distances[i][t],
-                        None => robot.cost_to(&costs.cost_map(free_space_of(robot), robot.cell), c.target),
+                        None => robot.cost_to(&costs.cost_map(robot.free_space(), robot.cell), c.target),
                     };
                     cost.map(|cost| (c, cost))
                 }) {
@@ -278,13 +278,8 @@ fn frontier_distances(
     costs: &mut CostCache<'_>,
     frontier: &[Cell],
 ) -> Vec<Vec<Option<f64>>> {
-    let kinds: Vec<TraversalKind> = input.robots.iter().map(free_space_of).collect();
+    let kinds: Vec<TraversalKind> = input.robots.iter().map(RobotView::free_space).collect();
     costs_to_cells(input, costs, &kinds, frontier)
-}
-
-/// The free-space traversal of the robot's footprint.
-fn free_space_of(robot: &RobotView) -> TraversalKind {
-    TraversalKind::free_space(robot.capabilities.footprint_radius_m)
 }
 
 #[cfg(test)]

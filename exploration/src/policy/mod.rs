@@ -95,6 +95,12 @@ impl RobotView {
     pub fn cost_to(&self, map: &crate::cost::CostMap, cell: Cell) -> Option<f64> {
         if self.may_target(cell) { map.cost(cell) } else { None }
     }
+
+    /// The free space the robot moves in: known free cells, obstacles
+    /// inflated by its footprint.
+    pub fn free_space(&self) -> crate::cost::TraversalKind {
+        crate::cost::TraversalKind::free_space(self.capabilities.footprint_radius_m)
+    }
 }
 
 /// Everything a policy may look at for one replanning.
@@ -303,11 +309,7 @@ pub fn cluster_costs(
 /// (inside an inflated obstacle), or teams of mixed footprints, use their
 /// own wavefronts.
 pub fn cluster_cost_matrix(input: &PlanningInput<'_>, costs: &mut CostCache<'_>, margin: f64) -> ClusterCosts {
-    let kinds: Vec<crate::cost::TraversalKind> = input
-        .robots
-        .iter()
-        .map(|r| crate::cost::TraversalKind::free_space(r.capabilities.footprint_radius_m))
-        .collect();
+    let kinds: Vec<crate::cost::TraversalKind> = input.robots.iter().map(RobotView::free_space).collect();
     let one_kind = kinds.windows(2).all(|w| w[0] == w[1]);
     if kinds.is_empty() || !one_kind || input.clusters.len() >= input.robots.len() {
         let rows = free_space_cost_maps(input, costs)
@@ -372,11 +374,7 @@ pub fn free_space_cost_maps(
     input: &PlanningInput<'_>,
     costs: &mut CostCache<'_>,
 ) -> Vec<std::sync::Arc<crate::cost::CostMap>> {
-    let kinds: Vec<crate::cost::TraversalKind> = input
-        .robots
-        .iter()
-        .map(|r| crate::cost::TraversalKind::free_space(r.capabilities.footprint_radius_m))
-        .collect();
+    let kinds: Vec<crate::cost::TraversalKind> = input.robots.iter().map(RobotView::free_space).collect();
     robot_cost_maps(input, costs, &kinds)
 }
 

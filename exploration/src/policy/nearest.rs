@@ -36,8 +36,7 @@ impl Policy for Nearest {
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
-        let kinds: Vec<TraversalKind> =
-            input.robots.iter().map(|r| TraversalKind::free_space(r.capabilities.footprint_radius_m)).collect();
+        let kinds: Vec<TraversalKind> = input.robots.iter().map(|r| r.free_space()).collect();
         // One wavefront from the whole frontier serves every robot of one
         // footprint: it finds each robot's closest frontier cell (costs are
         // reversible on the free-space traversal).
@@ -55,7 +54,7 @@ impl Policy for Nearest {
                     _ => None,
                 };
                 let nearest = nearest.or_else(|| {
-                    let kind = TraversalKind::free_space(robot.capabilities.footprint_radius_m);
+                    let kind = robot.free_space();
                     let map = costs.cost_map(kind, robot.cell);
                     frontier
                         .iter()
@@ -68,8 +67,7 @@ impl Policy for Nearest {
                 let kept = current_target(robot)
                     .filter(|c| *c != nearest.0 && frontier.contains(c) && robot.may_target(*c))
                     .and_then(|c| {
-                        let traversal =
-                            costs.traversal(TraversalKind::free_space(robot.capabilities.footprint_radius_m));
+                        let traversal = costs.traversal(robot.free_space());
                         let path = shortest_path(traversal.frame(), robot.cell, c, |n| traversal.passable(n))?;
                         let length: f64 =
                             path.windows(2).map(|w| w[0].distance(w[1])).sum::<f64>() * traversal.frame().resolution;

@@ -213,8 +213,7 @@ enum Reach {
 
 impl Reach {
     fn new(input: &PlanningInput<'_>, costs: &mut CostCache<'_>, open: &[&Segment]) -> Self {
-        let kinds: Vec<TraversalKind> =
-            input.robots.iter().map(|r| TraversalKind::free_space(r.capabilities.footprint_radius_m)).collect();
+        let kinds: Vec<TraversalKind> = input.robots.iter().map(RobotView::free_space).collect();
         let one_kind = kinds.windows(2).all(|w| w[0] == w[1]);
         if let Some(&kind) = kinds.first().filter(|_| one_kind && open.len() < input.robots.len()) {
             let traversal = costs.traversal(kind);

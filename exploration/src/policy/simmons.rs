@@ -251,8 +251,7 @@ impl Policy for Simmons {
         if !bidders.is_empty() {
             let frontier = spaced(&input.frontier_cells(), self.spacing_m / resolution);
             let robots: Vec<RobotView> = bidders.iter().map(|&i| input.robots[i].clone()).collect();
-            let kinds: Vec<TraversalKind> =
-                robots.iter().map(|r| TraversalKind::free_space(r.capabilities.footprint_radius_m)).collect();
+            let kinds: Vec<TraversalKind> = robots.iter().map(RobotView::free_space).collect();
             let path_costs = costs_to_cells(&PlanningInput { robots: &robots, ..*input }, costs, &kinds, &frontier);
             let mut gains: std::collections::HashMap<(Cell, u64), (f64, CellRect)> = std::collections::HashMap::new();
             for ((&i, robot), row) in bidders.iter().zip(&robots).zip(&path_costs) {

@@ -47,8 +47,7 @@ impl Policy for Unassigned {
     /// robot whose choice the robots before it took searches again, further.
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
-        let kinds: Vec<TraversalKind> =
-            input.robots.iter().map(|r| TraversalKind::free_space(r.capabilities.footprint_radius_m)).collect();
+        let kinds: Vec<TraversalKind> = input.robots.iter().map(RobotView::free_space).collect();
         let traversals = towards_goals(&kinds, costs, &frontier);
         let pairs: Vec<(&RobotView, &Towards)> = input.robots.iter().zip(&traversals).collect();
         let search = |robot: &RobotView, (traversal, goals): &Towards, taken: &[Cell]| {
