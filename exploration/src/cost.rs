@@ -36,6 +36,13 @@ pub struct TraversalMap {
     padded: Vec<f32>,
     /// The same cells' passability as bits: small enough to stay in cache.
     passable_bits: Vec<u64>,
+    /// Per cell, the steps a robot may take from it without cutting a
+    /// corner (bit k for [`Moves::offsets`]' k-th), so that a search reads
+    /// one byte per cell instead of twelve passability bits.
+    moves: Vec<u8>,
+    /// Per passable cell, the steps into it that cut no corner (bit k: from
+    /// the neighbour at offset k), whether or not that neighbour is passable.
+    entries: Vec<u8>,
     /// Smallest and largest finite cost per metre.
     step_range: (f32, f32),
 }
@@ -114,7 +121,57 @@ impl TraversalMap {
                 }
             }
         }
-        Self { frame, window, padded, passable_bits, step_range }
+        let (moves, entries) = Moves::of(&passable_bits, window);
+        Self { frame, window, padded, passable_bits, moves, entries, step_range }
+    }
+}
+
+/// The eight steps of a padded grid in the order searches relax them:
+/// orthogonal first, then diagonal, each diagonal with its two side cells.
+struct Moves;
+
+impl Moves {
+    /// Index offsets of the eight steps, for rows of `stride` cells.
+    #[inline(always)]
+    fn offsets(stride: usize) -> [isize; 8] {
+        let s = stride as isize;
+        [1, -1, s, -s, s + 1, s - 1, -s + 1, -s - 1]
+    }
+
+    /// Which steps from each cell land on a passable cell without cutting a
+    /// corner, and which steps into each passable cell cut none. The outer
+    /// ring of the window has neither: its neighbours would be out of
+    /// bounds, and nothing there is passable.
+    fn of(bits: &[u64], window: Window) -> (Vec<u8>, Vec<u8>) {
+        let s = window.stride as isize;
+        let offsets = Self::offsets(window.stride);
+        // The side cells of each diagonal step (offsets 4..8); a step and
+        // its reverse have the same two.
+        let sides: [(isize, isize); 4] = [(1, s), (-1, s), (1, -s), (-1, -s)];
+        let passable = |i: isize| bit(bits, i as usize);
+        let mut moves = vec![0u8; window.len()];
+        let mut entries = vec![0u8; window.len()];
+        for r in 1..window.rows.saturating_sub(1) {
+            for c in 1..window.stride - 1 {
+                let i = (r * window.stride + c) as isize;
+                let (mut out, mut into) = (0u8, 0u8);
+                for (k, &o) in offsets.iter().enumerate() {
+                    let corners_free = k < 4 || {
+                        let (a, b) = sides[k - 4];
+                        passable(i + a) && passable(i + b)
+                    };
+                    if corners_free {
+                        into |= 1 << k;
+                        if passable(i + o) {
+                            out |= 1 << k;
+                        }
+                    }
+                }
+                moves[i as usize] = out;
+                entries[i as usize] = if passable(i) { into } else { 0 };
+            }
+        }
+        (moves, entries)
     }
 }
 
@@ -483,7 +540,15 @@ impl TraversalMap {
 
     fn weighted(&self) -> Weighted<'_> {
         let (orthogonal, diagonal) = self.step_lengths();
-        Weighted { costs: &self.padded, bits: &self.passable_bits, stride: self.window.stride, orthogonal, diagonal }
+        Weighted {
+            costs: &self.padded,
+            bits: &self.passable_bits,
+            moves: &self.moves,
+            entries: &self.entries,
+            stride: self.window.stride,
+            orthogonal,
+            diagonal,
+        }
     }
 
     /// Only meaningful when [`Self::is_uniform`].
@@ -492,6 +557,7 @@ impl TraversalMap {
         let per_metre = self.step_range.0;
         Uniform {
             bits: &self.passable_bits,
+            moves: &self.moves,
             stride: self.window.stride,
             orthogonal: orthogonal * per_metre,
             diagonal: diagonal * per_metre,
@@ -517,6 +583,8 @@ trait Neighbourhood {
 struct Weighted<'a> {
     costs: &'a [f32],
     bits: &'a [u64],
+    moves: &'a [u8],
+    entries: &'a [u8],
     stride: usize,
     orthogonal: f32,
     diagonal: f32,
@@ -525,6 +593,17 @@ struct Weighted<'a> {
 impl Neighbourhood for Weighted<'_> {
     #[inline(always)]
     fn neighbours<const CUT: bool>(&self, i: usize, here: f32, mut improve: impl FnMut(usize, f32)) {
+        if !CUT {
+            let moves = self.moves[i];
+            for (k, o) in Moves::offsets(self.stride).into_iter().enumerate() {
+                if moves >> k & 1 != 0 {
+                    let j = i.wrapping_add_signed(o);
+                    let length = if k < 4 { self.orthogonal } else { self.diagonal };
+                    improve(j, here + length * self.costs[j]);
+                }
+            }
+            return;
+        }
         let s = self.stride;
         for j in [i + 1, i - 1, i + s, i - s] {
             if bit(self.bits, j) {
@@ -545,6 +624,7 @@ impl Neighbourhood for Weighted<'_> {
 /// are read, and they stay in cache.
 struct Uniform<'a> {
     bits: &'a [u64],
+    moves: &'a [u8],
     stride: usize,
     orthogonal: f32,
     diagonal: f32,
@@ -553,14 +633,23 @@ struct Uniform<'a> {
 impl Neighbourhood for Uniform<'_> {
     #[inline(always)]
     fn neighbours<const CUT: bool>(&self, i: usize, here: f32, mut improve: impl FnMut(usize, f32)) {
-        let s = self.stride;
         let straight = here + self.orthogonal;
+        let slanted = here + self.diagonal;
+        if !CUT {
+            let moves = self.moves[i];
+            for (k, o) in Moves::offsets(self.stride).into_iter().enumerate() {
+                if moves >> k & 1 != 0 {
+                    improve(i.wrapping_add_signed(o), if k < 4 { straight } else { slanted });
+                }
+            }
+            return;
+        }
+        let s = self.stride;
         for j in [i + 1, i - 1, i + s, i - s] {
             if bit(self.bits, j) {
                 improve(j, straight);
             }
         }
-        let slanted = here + self.diagonal;
         for (j, a, b) in
             [(i + s + 1, i + 1, i + s), (i + s - 1, i - 1, i + s), (i - s + 1, i + 1, i - s), (i - s - 1, i - 1, i - s)]
         {
@@ -580,7 +669,22 @@ struct Inbound<'a>(Weighted<'a>);
 impl Neighbourhood for Inbound<'_> {
     #[inline(always)]
     fn neighbours<const CUT: bool>(&self, i: usize, here: f32, mut improve: impl FnMut(usize, f32)) {
-        let Weighted { costs, bits, stride: s, orthogonal, diagonal } = self.0;
+        let Weighted { costs, bits, entries, stride: s, orthogonal, diagonal, .. } = self.0;
+        if !CUT {
+            // Nothing enters an impassable cell (no entries).
+            let entries = entries[i];
+            if entries == 0 {
+                return;
+            }
+            let straight = here + orthogonal * costs[i];
+            let slanted = here + diagonal * costs[i];
+            for (k, o) in Moves::offsets(s).into_iter().enumerate() {
+                if entries >> k & 1 != 0 {
+                    improve(i.wrapping_add_signed(o), if k < 4 { straight } else { slanted });
+                }
+            }
+            return;
+        }
         // Nothing enters an impassable cell. A passable one is off the
         // window's border, so its neighbours are in bounds.
         if !bit(bits, i) {
@@ -1061,6 +1165,40 @@ mod tests {
 
     proptest::proptest! {
         #![proptest_config(crate::testing::seeded_proptest(256))]
+        /// The step masks say what the corner rule says, cell by cell: a
+        /// step out lands on a passable cell, a step in enters one, and a
+        /// diagonal either way needs both side cells passable.
+        #[test]
+        fn step_masks_follow_the_corner_rule(
+            width in 1u32..24,
+            height in 1u32..24,
+            seed in 0u64..1_000_000,
+            blocked_per_mille in 0u64..600,
+        ) {
+            let frame = GridFrame::new(0.25, crate::math::Point2::origin(), width, height);
+            let mut rng = crate::rng::SplitMix64::new(seed);
+            let costs: Vec<f32> =
+                (0..frame.len()).map(|_| if rng.below(1000) < blocked_per_mille { f32::INFINITY } else { 1.0 }).collect();
+            let t = TraversalMap::from_costs(frame, costs);
+            let (stride, rows) = (t.window.stride as i64, t.window.rows as i64);
+            let passable = |x: i64, y: i64| {
+                (0..stride).contains(&x) && (0..rows).contains(&y) && t.padded[(y * stride + x) as usize].is_finite()
+            };
+            let steps = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, 1), (1, -1), (-1, -1)];
+            for (i, (&out, &into)) in t.moves.iter().zip(&t.entries).enumerate() {
+                let (x, y) = (i as i64 % stride, i as i64 / stride);
+                for (k, &(dx, dy)) in steps.iter().enumerate() {
+                    proptest::prop_assert_eq!(Moves::offsets(t.window.stride)[k], (dy * stride + dx) as isize);
+                    let corners_free = passable(x + dx, y) && passable(x, y + dy);
+                    let straight = dx == 0 || dy == 0;
+                    let may_leave = passable(x + dx, y + dy) && (straight || corners_free);
+                    let may_enter = passable(x, y) && (straight || corners_free);
+                    proptest::prop_assert_eq!(out >> k & 1 != 0, may_leave, "out of ({}, {}) by {:?}", x, y, (dx, dy));
+                    proptest::prop_assert_eq!(into >> k & 1 != 0, may_enter, "into ({}, {}) from {:?}", x, y, (dx, dy));
+                }
+            }
+        }
+
         /// Dial's buckets settle the same labels as Dijkstra with a heap.
         #[test]
         fn buckets_agree_with_a_binary_heap(
@@ -1088,6 +1226,8 @@ mod tests {
             let n = Weighted {
                 costs: &t.padded,
                 bits: &t.passable_bits,
+                moves: &t.moves,
+                entries: &t.entries,
                 stride: t.window.stride,
                 orthogonal: 0.25,
                 diagonal: (0.25 * std::f64::consts::SQRT_2) as f32,

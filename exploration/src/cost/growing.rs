@@ -102,7 +102,13 @@ impl<'t> GrowingCostMap<'t> {
         let (Some((search, open)), Some(goals)) = (&mut self.search, self.goals) else { return };
         // At least one bucket more, so that every call makes progress.
         let end = search.end_for(radius as f32).max(search.current + 1);
-        search.drain_guided(&self.traversal.weighted(), &mut self.cost, &goals.cost, open, end);
+        let traversal = self.traversal;
+        // Where every step costs the same, the per-cell costs need not be read.
+        if traversal.is_uniform() {
+            search.drain_guided(&traversal.uniform(), &mut self.cost, &goals.cost, open, end);
+        } else {
+            search.drain_guided(&traversal.weighted(), &mut self.cost, &goals.cost, open, end);
+        }
         if search.exhausted() {
             self.search = None;
         }
