@@ -138,6 +138,39 @@ impl Moves {
         [1, -1, s, -s, s + 1, s - 1, -s + 1, -s - 1]
     }
 
+    /// Calls `step(j, diagonal)` for each neighbour `j` of `i` whose bit is
+    /// set in `mask`, in the order of [`Self::offsets`]. Written out step by
+    /// step: searches over uniform steps ran an eighth faster than with a
+    /// loop (the replan bench's office).
+    #[inline(always)]
+    fn each(mask: u8, i: usize, stride: usize, mut step: impl FnMut(usize, bool)) {
+        let [o0, o1, o2, o3, o4, o5, o6, o7] = Self::offsets(stride);
+        if mask & 1 != 0 {
+            step(i.wrapping_add_signed(o0), false);
+        }
+        if mask & 2 != 0 {
+            step(i.wrapping_add_signed(o1), false);
+        }
+        if mask & 4 != 0 {
+            step(i.wrapping_add_signed(o2), false);
+        }
+        if mask & 8 != 0 {
+            step(i.wrapping_add_signed(o3), false);
+        }
+        if mask & 16 != 0 {
+            step(i.wrapping_add_signed(o4), true);
+        }
+        if mask & 32 != 0 {
+            step(i.wrapping_add_signed(o5), true);
+        }
+        if mask & 64 != 0 {
+            step(i.wrapping_add_signed(o6), true);
+        }
+        if mask & 128 != 0 {
+            step(i.wrapping_add_signed(o7), true);
+        }
+    }
+
     /// Which steps from each cell land on a passable cell without cutting a
     /// corner, and which steps into each passable cell cut none. The outer
     /// ring of the window has neither: its neighbours would be out of
@@ -594,6 +627,8 @@ impl Neighbourhood for Weighted<'_> {
     #[inline(always)]
     fn neighbours<const CUT: bool>(&self, i: usize, here: f32, mut improve: impl FnMut(usize, f32)) {
         if !CUT {
+            // A loop, not [`Moves::each`]: written out, Burgard's office
+            // search ran 45 % slower (the bench's office, 200 robots).
             let moves = self.moves[i];
             for (k, o) in Moves::offsets(self.stride).into_iter().enumerate() {
                 if moves >> k & 1 != 0 {
@@ -636,12 +671,9 @@ impl Neighbourhood for Uniform<'_> {
         let straight = here + self.orthogonal;
         let slanted = here + self.diagonal;
         if !CUT {
-            let moves = self.moves[i];
-            for (k, o) in Moves::offsets(self.stride).into_iter().enumerate() {
-                if moves >> k & 1 != 0 {
-                    improve(i.wrapping_add_signed(o), if k < 4 { straight } else { slanted });
-                }
-            }
+            Moves::each(self.moves[i], i, self.stride, |j, diagonal| {
+                improve(j, if diagonal { slanted } else { straight });
+            });
             return;
         }
         let s = self.stride;
@@ -678,11 +710,7 @@ impl Neighbourhood for Inbound<'_> {
             }
             let straight = here + orthogonal * costs[i];
             let slanted = here + diagonal * costs[i];
-            for (k, o) in Moves::offsets(s).into_iter().enumerate() {
-                if entries >> k & 1 != 0 {
-                    improve(i.wrapping_add_signed(o), if k < 4 { straight } else { slanted });
-                }
-            }
+            Moves::each(entries, i, s, |j, diagonal| improve(j, if diagonal { slanted } else { straight }));
             return;
         }
         // Nothing enters an impassable cell. A passable one is off the
