@@ -35,6 +35,11 @@ struct Args {
     /// Threads a replanning may use (default: all cores).
     #[arg(long, env = "COORDINATOR_PLANNER_THREADS")]
     planner_threads: Option<usize>,
+    /// Threads all plans made off the request path may use at once
+    /// (default: one core fewer than all, at least one; at most
+    /// --planner-threads). Lockstep missions plan with --planner-threads.
+    #[arg(long, env = "COORDINATOR_BACKGROUND_PLANNER_THREADS")]
+    background_planner_threads: Option<usize>,
     /// The operator token (at least 16 characters), recorded as "operator":
     /// required for mission administration and overrides; robots then need
     /// the tokens their registration returns. Without it and without
@@ -118,9 +123,14 @@ async fn main() -> anyhow::Result<()> {
         DurabilityArg::Full => Durability::Full,
         DurabilityArg::Normal => Durability::Normal,
     };
+    let defaults = ExecutiveSettings::default();
     config.executive = ExecutiveSettings {
-        planner_threads: args.planner_threads.unwrap_or(ExecutiveSettings::default().planner_threads).max(1),
-        ..ExecutiveSettings::default()
+        planner_threads: args.planner_threads.unwrap_or(defaults.planner_threads).max(1),
+        background_planner_threads: args
+            .background_planner_threads
+            .unwrap_or(defaults.background_planner_threads)
+            .max(1),
+        ..defaults
     };
     let http = match args.http {
         Some(address) => Some(

@@ -41,6 +41,11 @@ use crate::metrics::Metrics;
 pub struct ExecutiveSettings {
     /// Threads a replanning may use for cost maps.
     pub planner_threads: usize,
+    /// Threads all plans made off the request path may use at once. Fewer
+    /// than the cores, so that requests keep a core while missions plan:
+    /// the planning threads' low priority does not protect the requests on
+    /// every host (it did not in this project's 2-core sandbox).
+    pub background_planner_threads: usize,
     /// Most missions at once.
     pub max_missions: usize,
     /// Most robots in one mission.
@@ -61,7 +66,8 @@ pub struct ExecutiveSettings {
 impl Default for ExecutiveSettings {
     fn default() -> Self {
         Self {
-            planner_threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            planner_threads: cores(),
+            background_planner_threads: cores().saturating_sub(1).max(1),
             max_missions: 1_000,
             max_robots_per_mission: 1_000,
             max_total_cells: 400_000_000,
@@ -70,6 +76,11 @@ impl Default for ExecutiveSettings {
             min_plan_interval: std::time::Duration::from_secs(1),
         }
     }
+}
+
+/// Cores this process may run on.
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
 /// A backup copy of the store on disk; removed when dropped.
@@ -243,6 +254,7 @@ impl Executive {
             writer.clone(),
             settings.clock.clone(),
             settings.planner_threads,
+            settings.background_planner_threads,
             Arc::clone(&next_task_id),
             Arc::clone(&metrics),
             settings.min_plan_interval,

@@ -5,8 +5,9 @@
 //! a replanning due, the mission's planner task is woken. It coalesces
 //! wake-ups (every trigger that arrives while a plan is made is served by
 //! the next one), takes a snapshot under the mission's lock, makes the plan
-//! off the lock on the blocking pool (missions in parallel, up to the
-//! planner thread budget), and commits it only while it still fits the
+//! off the lock on the planning threads (missions in parallel, up to the
+//! background budget: one core fewer than all by default, so that requests
+//! keep a core while every mission plans), and commits it only while it still fits the
 //! mission: if something that demands a new plan happened meanwhile (a task
 //! ended, a robot joined or left, the policy changed), it plans again.
 //!
@@ -125,7 +126,9 @@ pub(crate) struct Planner {
     clock: Clock,
     /// Threads one plan may use.
     threads: usize,
-    /// One permit per plan made at once.
+    /// Threads plans made off the request path may use at once.
+    background: usize,
+    /// One permit per plan made off the request path at once.
     permits: Semaphore,
     /// Plans being made now.
     running: AtomicUsize,
@@ -142,6 +145,7 @@ impl Planner {
         writer: Writer,
         clock: Clock,
         threads: usize,
+        background: usize,
         task_ids: Arc<AtomicU64>,
         metrics: Arc<Metrics>,
         min_gap: std::time::Duration,
@@ -151,7 +155,8 @@ impl Planner {
             writer,
             clock,
             threads: threads.max(1),
-            permits: Semaphore::new(threads.max(1)),
+            background: background_budget(threads, background),
+            permits: Semaphore::new(background_budget(threads, background)),
             running: AtomicUsize::new(0),
             task_ids,
             metrics,
@@ -248,7 +253,7 @@ impl Planner {
                 let mission = cell.lock().await;
                 let now = self.clock.now();
                 let Some(reason) = mission.replan_reason_off_path(now, self.min_gap) else { return };
-                let threads = if self.running.load(Ordering::Acquire) > 0 { 1 } else { self.threads };
+                let threads = if self.running.load(Ordering::Acquire) > 0 { 1 } else { self.background };
                 let policy = mission.record().spec.policy.name();
                 (mission.planning_job(threads), mission.plan_basis(), reason, now, policy)
             };
@@ -281,5 +286,31 @@ impl Planner {
                 return;
             }
         }
+    }
+}
+
+/// Threads plans off the request path may use: at least one, and no more
+/// than one plan may.
+fn background_budget(threads: usize, background: usize) -> usize {
+    background.clamp(1, threads.max(1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::background_budget;
+    use crate::ExecutiveSettings;
+
+    #[test]
+    fn background_plans_leave_the_requests_a_core_when_there_is_more_than_one() {
+        let settings = ExecutiveSettings::default();
+        let cores = settings.planner_threads;
+        let budget = background_budget(settings.planner_threads, settings.background_planner_threads);
+        assert_eq!(budget, (cores - 1).max(1), "{cores} cores");
+        assert_eq!(background_budget(2, 1), 1);
+        assert_eq!(background_budget(8, 7), 7);
+        // Never none, never more than one plan may use.
+        assert_eq!(background_budget(2, 0), 1);
+        assert_eq!(background_budget(2, 9), 2);
+        assert_eq!(background_budget(0, 0), 1);
     }
 }
