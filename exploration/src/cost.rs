@@ -655,8 +655,9 @@ impl Neighbourhood for Weighted<'_> {
     }
 }
 
-/// The same cost per metre everywhere passable: only the passability bits
-/// are read, and they stay in cache.
+/// The same cost per metre everywhere passable: only the step masks (or,
+/// for searches that cut corners, the passability bits) are read, no
+/// per-cell cost.
 struct Uniform<'a> {
     bits: &'a [u64],
     moves: &'a [u8],
