@@ -35,9 +35,10 @@ struct Args {
     /// Threads a replanning may use (default: all cores).
     #[arg(long, env = "COORDINATOR_PLANNER_THREADS")]
     planner_threads: Option<usize>,
-    /// Threads all plans made off the request path may use at once
-    /// (default: one core fewer than all, at least one; at most
-    /// --planner-threads). Lockstep missions plan with --planner-threads.
+    /// Plans made off the request path at once, and the threads one of
+    /// them may use when it is the only one (default: one core fewer than
+    /// all, at least one; at most --planner-threads). Lockstep missions
+    /// plan with --planner-threads.
     #[arg(long, env = "COORDINATOR_BACKGROUND_PLANNER_THREADS")]
     background_planner_threads: Option<usize>,
     /// The operator token (at least 16 characters), recorded as "operator":

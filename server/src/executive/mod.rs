@@ -41,7 +41,8 @@ use crate::metrics::Metrics;
 pub struct ExecutiveSettings {
     /// Threads a replanning may use for cost maps.
     pub planner_threads: usize,
-    /// Threads all plans made off the request path may use at once. Fewer
+    /// Plans made off the request path at once, and the threads one of them
+    /// may use when it is the only one (the others take one each). Fewer
     /// than the cores, so that requests keep a core while missions plan:
     /// the planning threads' low priority does not protect the requests on
     /// every host (it did not in this project's 2-core sandbox).

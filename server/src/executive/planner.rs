@@ -7,8 +7,8 @@
 //! the next one), takes a snapshot under the mission's lock, makes the plan
 //! off the lock on the planning threads (missions in parallel, up to the
 //! background budget: one core fewer than all by default, so that requests
-//! keep a core while every mission plans), and commits it only while it still fits the
-//! mission: if something that demands a new plan happened meanwhile (a task
+//! keep a core while every mission plans), and commits it only while it
+//! still fits the mission: if something that demands a new plan happened meanwhile (a task
 //! ended, a robot joined or left, the policy changed), it plans again.
 //!
 //! A mission in lockstep (simulations) is planned inside the request that
@@ -126,7 +126,8 @@ pub(crate) struct Planner {
     clock: Clock,
     /// Threads one plan may use.
     threads: usize,
-    /// Threads plans made off the request path may use at once.
+    /// Plans made off the request path at once, and the threads one of
+    /// them may use when it is the only one.
     background: usize,
     /// One permit per plan made off the request path at once.
     permits: Semaphore,
@@ -289,8 +290,8 @@ impl Planner {
     }
 }
 
-/// Threads plans off the request path may use: at least one, and no more
-/// than one plan may.
+/// Plans made off the request path at once (and threads for one alone): at
+/// least one, and no more threads than one plan may use.
 fn background_budget(threads: usize, background: usize) -> usize {
     background.clamp(1, threads.max(1))
 }
