@@ -13,7 +13,8 @@
 //! within the radius are touched, a band along the paths instead of a disc
 //! around the robot.
 
-use super::{Buckets, Cell, TraversalMap, heap};
+use super::search::{Buckets, heap};
+use super::{Cell, TraversalMap};
 
 /// Every cell's cost to the nearest of a set of goals, over one traversal:
 /// one search over the steps reversed, shared by all robots' searches.
