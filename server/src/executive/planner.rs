@@ -151,13 +151,14 @@ impl Planner {
         metrics: Arc<Metrics>,
         min_gap: std::time::Duration,
     ) -> Arc<Self> {
+        let background = background_budget(threads, background);
         Arc::new(Self {
             threads_pool: PlanThreads::start(threads.max(1)),
             writer,
             clock,
             threads: threads.max(1),
-            background: background_budget(threads, background),
-            permits: Semaphore::new(background_budget(threads, background)),
+            background,
+            permits: Semaphore::new(background),
             running: AtomicUsize::new(0),
             task_ids,
             metrics,
