@@ -384,6 +384,150 @@ impl MapFusion {
     }
 }
 
+/// One layer of a [`MapFusion`] as plain data: the robot's known cells, as
+/// square patches of the tiles it reported in (NaN where it knows nothing).
+#[derive(Debug, Clone)]
+pub struct LayerParts {
+    /// Whose layer.
+    pub id: LayerId,
+    /// Its tiles, each clipped to the grid.
+    pub tiles: Vec<Patch>,
+}
+
+/// Everything a [`MapFusion`] holds, as plain data, so that a store can
+/// keep the fused map instead of every patch that made it (a compacted
+/// patch log). The sums are kept as they are, bit for bit: rebuilding them
+/// from the layers would add the same numbers in another order, and a fused
+/// map restored from its parts must equal the one they were taken from.
+#[derive(Debug, Clone)]
+pub struct FusionParts {
+    /// Σ of the layers' log-odds per cell, row-major.
+    pub sum: Vec<f32>,
+    /// The layers, by robot.
+    pub layers: Vec<LayerParts>,
+}
+
+/// Why parts do not make a fusion of a grid.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PartsError {
+    /// The sums are not one per cell.
+    #[error("{got} sums for a grid of {expected} cells")]
+    SumCount {
+        /// Cells of the grid.
+        expected: usize,
+        /// Sums given.
+        got: usize,
+    },
+    /// A sum is NaN or infinite, or set on a cell no layer knows.
+    #[error("the sum of cell {index} is {value}, which its layers cannot add up to")]
+    BadSum {
+        /// Row-major cell index.
+        index: usize,
+        /// The value.
+        value: f32,
+    },
+    /// A layer's patch is not one whole tile of the grid.
+    #[error("layer {layer}: {rect:?} is not a tile of the grid")]
+    NotATile {
+        /// The layer.
+        layer: LayerId,
+        /// The patch's rectangle.
+        rect: CellRect,
+    },
+    /// A layer appears twice, or a tile twice in one layer.
+    #[error("layer {0} or one of its tiles is given twice")]
+    Repeated(LayerId),
+    /// More layers know a cell than a cell can count.
+    #[error("cell {0} is known by more layers than the executive counts")]
+    TooManyObservers(usize),
+}
+
+impl MapFusion {
+    /// The fusion as plain data (see [`FusionParts`]).
+    pub fn parts(&self) -> FusionParts {
+        let layers = self
+            .layers
+            .iter()
+            .map(|(&id, layer)| LayerParts {
+                id,
+                tiles: layer
+                    .tiles
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(t, tile)| tile.as_ref().map(|tile| self.tile_patch(t, tile)))
+                    .collect(),
+            })
+            .collect();
+        FusionParts { sum: self.sum.clone(), layers }
+    }
+
+    /// The fusion the parts were taken from, checked against `frame`: the
+    /// same layers, sums, observers and fused grid.
+    pub fn from_parts(frame: GridFrame, parts: FusionParts) -> Result<Self, PartsError> {
+        let mut fusion = Self::new(frame);
+        if parts.sum.len() != frame.len() {
+            return Err(PartsError::SumCount { expected: frame.len(), got: parts.sum.len() });
+        }
+        for layer in parts.layers {
+            let mut tiles = vec![None; fusion.tiles_x * fusion.tiles_y];
+            for patch in layer.tiles {
+                let t = fusion.tile_of(&patch).ok_or(PartsError::NotATile { layer: layer.id, rect: patch.rect() })?;
+                if tiles[t].is_some() {
+                    return Err(PartsError::Repeated(layer.id));
+                }
+                let mut tile = vec![f32::NAN; TILE * TILE].into_boxed_slice();
+                let rect = patch.rect();
+                for (k, &value) in patch.log_odds().iter().enumerate() {
+                    let (dx, dy) = (k % rect.width as usize, k / rect.width as usize);
+                    tile[dy * TILE + dx] = value;
+                    if !value.is_nan() {
+                        let i = (rect.y as usize + dy) * frame.width as usize + rect.x as usize + dx;
+                        fusion.observers[i] =
+                            fusion.observers[i].checked_add(1).ok_or(PartsError::TooManyObservers(i))?;
+                    }
+                }
+                tiles[t] = Some(tile);
+            }
+            if fusion.layers.insert(layer.id, Layer { tiles }).is_some() {
+                return Err(PartsError::Repeated(layer.id));
+            }
+        }
+        let mut cells = vec![UNKNOWN; frame.len()];
+        for (i, (&sum, &observers)) in parts.sum.iter().zip(&fusion.observers).enumerate() {
+            if !sum.is_finite() || (observers == 0 && sum != 0.0) {
+                return Err(PartsError::BadSum { index: i, value: sum });
+            }
+            if observers > 0 {
+                cells[i] = fused_percent(sum);
+            }
+        }
+        fusion.sum = parts.sum;
+        fusion.grid = OccupancyGrid::from_cells(frame, cells);
+        Ok(fusion)
+    }
+
+    /// Tile `t` of a layer as a patch, clipped to the grid.
+    fn tile_patch(&self, t: usize, tile: &[f32]) -> Patch {
+        let (x, y) = ((t % self.tiles_x) * TILE, (t / self.tiles_x) * TILE);
+        let width = TILE.min(self.frame.width as usize - x);
+        let height = TILE.min(self.frame.height as usize - y);
+        let log_odds = (0..height).flat_map(|dy| tile[dy * TILE..dy * TILE + width].iter().copied()).collect();
+        Patch { rect: CellRect::new(x as i32, y as i32, width as u32, height as u32), log_odds }
+    }
+
+    /// Which tile a patch covers exactly, clipped to the grid, if any.
+    fn tile_of(&self, patch: &Patch) -> Option<usize> {
+        let rect = patch.rect();
+        let (x, y) = (usize::try_from(rect.x).ok()?, usize::try_from(rect.y).ok()?);
+        if x % TILE != 0 || y % TILE != 0 || !self.frame.contains_rect(&rect) {
+            return None;
+        }
+        let whole = |start: usize, side: u32, grid: u32| side as usize == TILE.min(grid as usize - start);
+        let t = (y / TILE) * self.tiles_x + x / TILE;
+        (whole(x, rect.width, self.frame.width) && whole(y, rect.height, self.frame.height)).then_some(t)
+    }
+}
+
 /// The stored value of a cell with log-odds sum `sum`.
 fn fused_percent(sum: f32) -> u8 {
     percent_from_probability(probability_from_log_odds(sum.clamp(LOG_ODDS_MIN, LOG_ODDS_MAX)))
@@ -492,5 +636,91 @@ mod tests {
         let outside = patch(CellRect::new(69, 39, 2, 1), 0.5);
         assert!(matches!(fusion.apply(1, &outside), Err(PatchError::OutsideGrid { .. })));
         assert_eq!(fusion.grid().known_cells(), 0);
+    }
+
+    /// A layer's tiles, bit for bit.
+    type LayerBits = (LayerId, Vec<(CellRect, Vec<u32>)>);
+
+    /// A fusion's state, bit for bit (NaN compares equal to NaN): sums,
+    /// observers, fused grid and layers.
+    fn state(fusion: &MapFusion) -> (Vec<u32>, Vec<u16>, Vec<u8>, Vec<LayerBits>) {
+        let parts = fusion.parts();
+        let layers = parts
+            .layers
+            .iter()
+            .map(|l| {
+                (l.id, l.tiles.iter().map(|t| (t.rect(), t.log_odds().iter().map(|v| v.to_bits()).collect())).collect())
+            })
+            .collect();
+        (
+            parts.sum.iter().map(|v| v.to_bits()).collect(),
+            fusion.observers.clone(),
+            fusion.grid().cells().to_vec(),
+            layers,
+        )
+    }
+
+    /// A random patch of a random robot, some cells unknown.
+    fn random_patch(rng: &mut crate::rng::SplitMix64, frame: &GridFrame) -> (LayerId, Patch) {
+        let (w, h) = (1 + rng.below(20) as u32, 1 + rng.below(20) as u32);
+        let x = rng.below(u64::from(frame.width - w + 1)) as i32;
+        let y = rng.below(u64::from(frame.height - h + 1)) as i32;
+        let rect = CellRect::new(x, y, w, h);
+        let values: Vec<f32> = (0..rect.area()).map(|_| rng.below(1001) as f32 / 1000.0).collect();
+        let unknown: Vec<bool> = (0..rect.area()).map(|_| rng.below(4) == 0).collect();
+        (1 + rng.below(5), Patch::from_probabilities(rect, &values, &unknown).unwrap())
+    }
+
+    proptest::proptest! {
+        #![proptest_config(crate::testing::seeded_proptest(64))]
+        /// A fusion rebuilt from its parts is the same fusion, and stays the
+        /// same as the original under the patches that follow: what a
+        /// compacted patch log relies on.
+        #[test]
+        fn a_fusion_rebuilt_from_its_parts_goes_on_as_the_original(seed in 0u64..u64::MAX, before in 1usize..60) {
+            let frame = frame();
+            let mut rng = crate::rng::SplitMix64::new(seed);
+            let mut original = MapFusion::new(frame);
+            for _ in 0..before {
+                let (layer, patch) = random_patch(&mut rng, &frame);
+                original.apply(layer, &patch).unwrap();
+            }
+            let mut rebuilt = MapFusion::from_parts(frame, original.parts()).unwrap();
+            proptest::prop_assert_eq!(state(&rebuilt), state(&original));
+            for _ in 0..20 {
+                let (layer, patch) = random_patch(&mut rng, &frame);
+                proptest::prop_assert_eq!(rebuilt.apply(layer, &patch).unwrap(), original.apply(layer, &patch).unwrap());
+            }
+            proptest::prop_assert_eq!(state(&rebuilt), state(&original));
+        }
+    }
+
+    #[test]
+    fn parts_that_no_fusion_has_are_refused() {
+        let frame = frame();
+        let mut fusion = MapFusion::new(frame);
+        fusion.apply(7, &patch(CellRect::new(30, 30, 5, 5), 0.9)).unwrap();
+        let good = fusion.parts();
+        assert!(MapFusion::from_parts(frame, good.clone()).is_ok());
+
+        let mut short = good.clone();
+        short.sum.pop();
+        assert!(matches!(MapFusion::from_parts(frame, short), Err(PartsError::SumCount { .. })));
+
+        let mut unknown_with_a_sum = good.clone();
+        unknown_with_a_sum.sum[0] = 1.0;
+        assert!(matches!(MapFusion::from_parts(frame, unknown_with_a_sum), Err(PartsError::BadSum { index: 0, .. })));
+
+        let mut infinite = good.clone();
+        infinite.sum[30 * 70 + 30] = f32::INFINITY;
+        assert!(matches!(MapFusion::from_parts(frame, infinite), Err(PartsError::BadSum { .. })));
+
+        let mut twice = good.clone();
+        twice.layers.push(twice.layers[0].clone());
+        assert!(matches!(MapFusion::from_parts(frame, twice), Err(PartsError::Repeated(7))));
+
+        let mut misplaced = good;
+        misplaced.layers[0].tiles[0] = patch(CellRect::new(1, 0, 32, 32), 0.5);
+        assert!(matches!(MapFusion::from_parts(frame, misplaced), Err(PartsError::NotATile { layer: 7, .. })));
     }
 }
