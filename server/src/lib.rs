@@ -39,6 +39,7 @@ pub mod validate;
 pub use clock::{Clock, ManualClock};
 pub use connections::ConnectionLimits;
 pub use executive::{Executive, ExecutiveSettings};
+pub use store::compact::Compaction;
 pub use store::sqlite::{Durability, SqliteStore};
 
 /// How to run an executive.
@@ -59,6 +60,8 @@ pub struct Config {
     pub tls: Option<TlsConfig>,
     /// Connection limits: how many at once, when an idle one is closed.
     pub connections: ConnectionLimits,
+    /// When the patch log is folded into map snapshots.
+    pub compaction: Compaction,
 }
 
 impl Config {
@@ -72,6 +75,7 @@ impl Config {
             operator_tokens_file: None,
             tls: None,
             connections: ConnectionLimits::default(),
+            compaction: Compaction::default(),
         }
     }
 }
@@ -219,6 +223,7 @@ pub async fn run_with(
         }
     };
     let sweeper = tokio::spawn(sweep_until(executive.clone(), clock, streams_end.clone()));
+    let compactor = tokio::spawn(store::compact::run(Arc::new(store.clone()), config.compaction, streams_end.clone()));
     let http_server = http_listener.map(|listener| {
         let stop = streams_end.clone().cancelled_owned();
         let app = http::router(Arc::clone(&executive), auth.clone(), streams_end.clone());
@@ -298,6 +303,9 @@ pub async fn run_with(
     streams_end.cancel();
     if let Err(e) = sweeper.await {
         tracing::error!(error = %e, "lease sweeper failed");
+    }
+    if let Err(e) = compactor.await {
+        tracing::error!(error = %e, "the patch log compactor failed");
     }
     if let Some(server) = http_server {
         match server.await {

@@ -76,3 +76,57 @@ async fn a_restart_on_the_same_file_restores_map_robots_and_tasks() {
     assert_eq!(ids.len(), before, "task identities are unique across the restart");
     exec.stop().await;
 }
+
+/// A patch log folded into a map snapshot (as the compactor does while the
+/// executive runs) restarts to the same fused map, cell for cell, and the
+/// robots' later updates apply on top of it.
+#[tokio::test]
+async fn a_folded_patch_log_restarts_to_the_same_map() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("x.db");
+    let exec = TestExecutive::start(&db).await;
+    let mut missions = exec.missions();
+    let mut fleet = exec.fleet();
+    let mission = create_mission(&mut missions, 60, 40, "minpos").await;
+    let mut robots = Vec::new();
+    for (name, x) in [("a", 0.55), ("b", 2.05), ("c", 3.55)] {
+        robots.push(register(&mut fleet, mission.id, name, x, 0.55).await.id);
+    }
+    // Overlapping patches that change their minds, so that the fused values
+    // depend on every patch and on the order they came in.
+    for seq in 1..=12u64 {
+        let robot = robots[seq as usize % 3];
+        let x = (seq as u32 * 7) % 40;
+        let mut p = patch(x, (seq as u32 * 3) % 25, 20, 15, 0.05 + 0.07 * seq as f32);
+        for (k, v) in p.values.iter_mut().enumerate() {
+            *v = (*v + 0.013 * (k % 11) as f32).min(1.0);
+        }
+        fleet.update_map(update(robot, seq, 0.55, 0.55, vec![p])).await.unwrap();
+    }
+    let map_before = missions.get_map(pb::GetMapRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    exec.stop().await;
+
+    let store = coordinator::SqliteStore::open(&db, coordinator::Durability::Full).await.unwrap();
+    let stored = coordinator::store::Store::missions(&store).await.unwrap();
+    assert_eq!(coordinator::store::compact::fold(&store, &stored[0], 9).await.unwrap(), 9);
+    assert_eq!(coordinator::store::Store::unfolded_patches(&store, mission.id).await.unwrap(), 3);
+    store.close().await;
+    drop(store);
+
+    let exec = TestExecutive::start(&db).await;
+    let mut missions = exec.missions();
+    let mut fleet = exec.fleet();
+    let map_after = missions.get_map(pb::GetMapRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_eq!(map_after.cells, map_before.cells, "the snapshot and the rest of the log make the same map");
+    let next = fleet.update_map(update(robots[0], 13, 0.55, 0.55, vec![patch(0, 0, 3, 3, 0.95)])).await.unwrap();
+    assert_eq!(next.into_inner().applied_seq, 13);
+    let map_updated = missions.get_map(pb::GetMapRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_ne!(map_updated.cells, map_before.cells);
+    exec.stop().await;
+
+    let exec = TestExecutive::start(&db).await;
+    let mut missions = exec.missions();
+    let map_again = missions.get_map(pb::GetMapRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_eq!(map_again.cells, map_updated.cells);
+    exec.stop().await;
+}

@@ -9,7 +9,7 @@ use tracing_subscriber::EnvFilter;
 
 use std::time::Duration;
 
-use coordinator::{Config, ConnectionLimits, Durability, ExecutiveSettings, TlsConfig};
+use coordinator::{Compaction, Config, ConnectionLimits, Durability, ExecutiveSettings, TlsConfig};
 
 /// Planning allocates a cost map per robot (megabytes each) and drops it
 /// when the plan is made; the system allocator hands such blocks back to
@@ -41,6 +41,11 @@ struct Args {
     /// plan with --planner-threads.
     #[arg(long, env = "COORDINATOR_BACKGROUND_PLANNER_THREADS")]
     background_planner_threads: Option<usize>,
+    /// Map patches a mission's log holds before the oldest are folded into
+    /// a snapshot of the map, which then replaces them (0: never fold; the
+    /// log then grows with every map update for as long as the mission lives).
+    #[arg(long, env = "COORDINATOR_COMPACT_AFTER_PATCHES", default_value_t = Compaction::default().after_patches)]
+    compact_after_patches: u32,
     /// The operator token (at least 16 characters), recorded as "operator":
     /// required for mission administration and overrides; robots then need
     /// the tokens their registration returns. Without it and without
@@ -124,6 +129,7 @@ async fn main() -> anyhow::Result<()> {
         DurabilityArg::Full => Durability::Full,
         DurabilityArg::Normal => Durability::Normal,
     };
+    config.compaction.after_patches = args.compact_after_patches;
     let defaults = ExecutiveSettings::default();
     config.executive = ExecutiveSettings {
         planner_threads: args.planner_threads.unwrap_or(defaults.planner_threads).max(1),

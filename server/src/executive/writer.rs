@@ -118,7 +118,7 @@ impl Writer {
         let store = &*self.store;
         let id = record.id;
         let robots = store.robots(&record).await?;
-        let patches = store.patches(&record).await?;
+        let map = store.stored_map(&record, None).await?;
         let open_tasks = store.open_tasks(id).await?;
         let blacklist = store.blacklist(id).await?;
         let forbidden = store.forbidden_regions(id).await?;
@@ -126,7 +126,8 @@ impl Writer {
         tracing::info!(
             mission = id,
             robots = robots.len(),
-            patches = patches.len(),
+            snapshot = map.snapshot.as_ref().map_or(0, |s| s.folded),
+            patches = map.patches.len(),
             open_tasks = open_tasks.len(),
             "loading mission"
         );
@@ -136,7 +137,7 @@ impl Writer {
         }
         let mut mission = Mission::restore(
             record,
-            StoredMission { robots, patches, open_tasks, blacklist, forbidden, rooms },
+            StoredMission { robots, map, open_tasks, blacklist, forbidden, rooms },
             self.clock.now(),
         )?;
         for (robot, robot_bids) in bids {

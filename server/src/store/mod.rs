@@ -12,11 +12,13 @@ use crate::domain::{
     Bid, BlacklistEntry, Leftover, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState, Region, RobotId,
     RobotRecord, RobotSpec, Rooms, StoredSegmentation, TaskId, TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
-use exploration::fusion::Patch;
-use exploration::grid::Cell;
+use exploration::fusion::{MapFusion, Patch};
+use exploration::grid::{Cell, GridFrame};
 use exploration::policy::PolicyConfig;
 
+pub mod compact;
 pub mod lock;
+pub mod snapshot;
 pub mod sqlite;
 
 pub use sqlite::SqliteStore;
@@ -132,6 +134,57 @@ pub struct LoggedPatch {
     pub patch: Patch,
 }
 
+/// A mission's map as stored: the fused map of the patches folded so far
+/// (see [`compact`]), and the patches logged after them.
+#[derive(Debug, Clone, Default)]
+pub struct StoredMap {
+    /// The folded part, if any was folded.
+    pub snapshot: Option<MapSnapshot>,
+    /// The patches after it, in the order they were applied.
+    pub patches: Vec<LoggedPatch>,
+    /// The log position of the last of `patches` (of the snapshot's last
+    /// patch when there are none; 0 for an empty log).
+    pub last_patch_id: u64,
+}
+
+impl StoredMap {
+    /// The fused map the log makes, on the mission's `frame` with `robots`
+    /// robots: the snapshot, then every patch after it. The same map,
+    /// bit for bit, as the one the executive had applied them to.
+    pub fn fuse(&self, frame: &GridFrame, robots: usize) -> Result<MapFusion, StoreError> {
+        let mut fusion = match &self.snapshot {
+            Some(s) => snapshot::decode(&s.bytes, s.raw_bytes, frame, robots)
+                .map_err(|e| StoreError::Corrupt(format!("map_snapshots: the snapshot {e}")))?,
+            None => MapFusion::new(*frame),
+        };
+        for logged in &self.patches {
+            fusion.apply(logged.robot_id, &logged.patch).map_err(|e| {
+                StoreError::Corrupt(format!(
+                    "map_patches: robot {}'s patch {} does not apply: {e}",
+                    logged.robot_id, logged.seq
+                ))
+            })?;
+        }
+        Ok(fusion)
+    }
+}
+
+/// The fused map of a mission's oldest patches, kept in their place.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapSnapshot {
+    /// The mission.
+    pub mission_id: MissionId,
+    /// The log position of the last patch folded into it: patches up to
+    /// here are in the snapshot, never read again, and removed.
+    pub through_patch_id: u64,
+    /// How many patches it folds, in all.
+    pub folded: u64,
+    /// The fused map, as [`snapshot::encode`] writes it.
+    pub bytes: Vec<u8>,
+    /// Their size decompressed.
+    pub raw_bytes: u64,
+}
+
 /// Names a submitted changeset, for the ones that follow it (see [`Store::submit`]).
 pub type CommitId = u64;
 
@@ -205,6 +258,13 @@ pub struct Changeset {
     pub robot_tokens: Vec<(RobotId, String)>,
     /// A robot's bids, replacing its earlier ones.
     pub bids: Option<(RobotId, Vec<Bid>)>,
+    /// A mission's map folded further: replaces its snapshot, whose
+    /// patches are then no longer read (see `forget_folded`).
+    pub snapshot: Option<MapSnapshot>,
+    /// Removes at most this many of a mission's patches that its snapshot
+    /// folds, oldest first: the log shrinks a little at a time, never in
+    /// one long write that every other changeset would wait behind.
+    pub forget_folded: Option<(MissionId, u32)>,
     /// When.
     pub at: Option<Timestamp>,
 }
@@ -227,6 +287,8 @@ impl Changeset {
             && self.allowed.is_empty()
             && self.robot_tokens.is_empty()
             && self.bids.is_none()
+            && self.snapshot.is_none()
+            && self.forget_folded.is_none()
     }
 }
 
@@ -286,8 +348,15 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// A mission's robots, in registration order.
     async fn robots(&self, mission: &MissionRecord) -> Result<Vec<RobotRecord>, StoreError>;
 
-    /// A mission's map log, in the order it was applied.
-    async fn patches(&self, mission: &MissionRecord) -> Result<Vec<LoggedPatch>, StoreError>;
+    /// A mission's map log, read at one moment: its snapshot and the
+    /// patches after it, all of them or the first `limit`.
+    async fn stored_map(&self, mission: &MissionRecord, limit: Option<u32>) -> Result<StoredMap, StoreError>;
+
+    /// How many patches a mission's log holds after its snapshot.
+    async fn unfolded_patches(&self, mission_id: MissionId) -> Result<u64, StoreError>;
+
+    /// How many patches its snapshot folds a mission's log still holds.
+    async fn folded_patches(&self, mission_id: MissionId) -> Result<u64, StoreError>;
 
     /// A mission's tasks that have not ended.
     async fn open_tasks(&self, mission_id: MissionId) -> Result<Vec<TaskRecord>, StoreError>;

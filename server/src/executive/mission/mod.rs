@@ -40,7 +40,7 @@ use crate::domain::{
     Timestamp, Transition,
 };
 use crate::error::Error;
-use crate::store::{Changeset, CommitId, LoggedPatch, MissionCounters, TaskChange};
+use crate::store::{Changeset, CommitId, LoggedPatch, MissionCounters, StoredMap, TaskChange};
 
 /// How close to its home a robot counts as home, metres.
 const HOME_TOLERANCE_M: f64 = 0.5;
@@ -62,7 +62,7 @@ struct TaskDraft {
 #[derive(Debug, Default)]
 pub(crate) struct StoredMission {
     pub(crate) robots: Vec<RobotRecord>,
-    pub(crate) patches: Vec<LoggedPatch>,
+    pub(crate) map: StoredMap,
     pub(crate) open_tasks: Vec<TaskRecord>,
     pub(crate) blacklist: Vec<crate::domain::BlacklistEntry>,
     pub(crate) forbidden: Vec<Region>,
@@ -144,16 +144,12 @@ pub(crate) struct Mission {
 impl Mission {
     /// A mission from its stored state: replays the map log, reopens its tasks.
     pub(crate) fn restore(record: MissionRecord, stored: StoredMission, now: Instant) -> Result<Self, Error> {
-        let StoredMission { robots, patches, open_tasks, blacklist, forbidden, rooms } = stored;
+        let StoredMission { robots, map, open_tasks, blacklist, forbidden, rooms } = stored;
         let policy: Arc<dyn Policy> = Arc::from(record.spec.policy.build());
-        let mut fusion = MapFusion::new(record.spec.frame);
-        let mut known_cells = 0;
-        for logged in &patches {
-            let change = fusion
-                .apply(logged.robot_id, &logged.patch)
-                .map_err(|e| Error::Internal(format!("mission {}: stored patch does not apply: {e}", record.id)))?;
-            known_cells += change.newly_known;
-        }
+        let fusion = map
+            .fuse(&record.spec.frame, robots.len())
+            .map_err(|e| Error::Internal(format!("mission {}: its stored map: {e}", record.id)))?;
+        let known_cells = fusion.grid().known_cells() as u64;
         let frontier = FrontierMap::detect(fusion.grid());
         let mut mission = Self {
             policy,

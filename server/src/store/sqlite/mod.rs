@@ -20,7 +20,7 @@ use sqlx::Connection;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteSynchronous};
 
 use super::lock::StoreLock;
-use super::{Changeset, CommitId, LoggedPatch, Store, StoreError, Submitted, TaskFilter};
+use super::{Changeset, CommitId, Store, StoreError, StoredMap, Submitted, TaskFilter};
 use crate::domain::{
     Bid, BlacklistEntry, MissionEvent, MissionId, MissionRecord, MissionSpec, Region, RobotId, RobotRecord, RobotSpec,
     Rooms, StoredSegmentation, TaskId, TaskKind, TaskRecord, Timestamp, Transition,
@@ -128,6 +128,12 @@ impl SqliteStore {
         read: impl Fn(&sqlx::sqlite::SqliteRow) -> Result<T, StoreError>,
     ) -> Result<Vec<T>, StoreError> {
         sqlx::query(sql).bind(key as i64).fetch_all(&self.pool).await?.iter().map(read).collect()
+    }
+
+    /// The count `sql` selects for `key` (its one parameter).
+    async fn count(&self, sql: &'static str, key: u64) -> Result<u64, StoreError> {
+        let count: i64 = sqlx::query_scalar(sql).bind(key as i64).fetch_one(&self.pool).await?;
+        Ok(count.max(0) as u64)
     }
 
     /// The events a query over `mission_events` selects, checked.
@@ -313,12 +319,51 @@ impl Store for SqliteStore {
         .await
     }
 
-    async fn patches(&self, mission: &MissionRecord) -> Result<Vec<LoggedPatch>, StoreError> {
-        self.all(
-            "SELECT id, robot_id, seq, x, y, width, height, cells, cells_format FROM map_patches WHERE mission_id = ?1 \
-             ORDER BY id",
-            mission.id,
-            |row| rows::patch_from_row(row, &mission.spec.frame),
+    async fn stored_map(&self, mission: &MissionRecord, limit: Option<u32>) -> Result<StoredMap, StoreError> {
+        // One read transaction: a compaction between reading the snapshot
+        // and the patches would otherwise lose the patches it folded.
+        let mut tx = self.pool.begin().await?;
+        let snapshot = sqlx::query("SELECT * FROM map_snapshots WHERE mission_id = ?1")
+            .bind(mission.id as i64)
+            .fetch_optional(&mut *tx)
+            .await?
+            .map(|row| rows::snapshot_from_row(&row))
+            .transpose()?;
+        let through = snapshot.as_ref().map_or(0, |s| s.through_patch_id);
+        let rows = sqlx::query(
+            "SELECT id, robot_id, seq, x, y, width, height, cells, cells_format FROM map_patches
+             WHERE mission_id = ?1 AND id > ?2 ORDER BY id LIMIT ?3",
+        )
+        .bind(mission.id as i64)
+        .bind(through as i64)
+        .bind(limit.map_or(-1, i64::from))
+        .fetch_all(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        let mut patches = Vec::with_capacity(rows.len());
+        let mut last_patch_id = through;
+        for row in &rows {
+            let (id, patch) = rows::patch_from_row(row, &mission.spec.frame)?;
+            patches.push(patch);
+            last_patch_id = id;
+        }
+        Ok(StoredMap { snapshot, patches, last_patch_id })
+    }
+
+    async fn unfolded_patches(&self, mission_id: MissionId) -> Result<u64, StoreError> {
+        self.count(
+            "SELECT COUNT(*) FROM map_patches WHERE mission_id = ?1
+                 AND id > COALESCE((SELECT through_patch_id FROM map_snapshots WHERE mission_id = ?1), 0)",
+            mission_id,
+        )
+        .await
+    }
+
+    async fn folded_patches(&self, mission_id: MissionId) -> Result<u64, StoreError> {
+        self.count(
+            "SELECT COUNT(*) FROM map_patches WHERE mission_id = ?1
+                 AND id <= COALESCE((SELECT through_patch_id FROM map_snapshots WHERE mission_id = ?1), 0)",
+            mission_id,
         )
         .await
     }

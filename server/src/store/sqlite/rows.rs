@@ -15,7 +15,7 @@ use crate::domain::{
     MissionState, Pose, Region, ReplanSettings, RobotId, RobotRecord, RobotState, Rooms, StoredSegmentation, TaskId,
     TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
-use crate::store::{LoggedPatch, StoreError};
+use crate::store::{LoggedPatch, MapSnapshot, StoreError};
 use crate::validate::{self, Invalid};
 use exploration::fusion::Patch;
 use exploration::grid::{Cell, CellRect, GridFrame};
@@ -300,8 +300,8 @@ pub(super) fn transition_from_row(row: &SqliteRow) -> Result<(TaskId, Transition
     ))
 }
 
-/// A logged patch of the mission whose grid is `frame`.
-pub(super) fn patch_from_row(row: &SqliteRow, frame: &GridFrame) -> Result<LoggedPatch, StoreError> {
+/// A logged patch of the mission whose grid is `frame`, with its log position.
+pub(super) fn patch_from_row(row: &SqliteRow, frame: &GridFrame) -> Result<(u64, LoggedPatch), StoreError> {
     let at = At::row("map_patches", row, "id")?;
     let side = |column: &str| {
         let v: i64 = at.get(row, column)?;
@@ -315,7 +315,21 @@ pub(super) fn patch_from_row(row: &SqliteRow, frame: &GridFrame) -> Result<Logge
     let stored: Vec<u8> = at.get(row, "cells")?;
     let format: i64 = at.get(row, "cells_format")?;
     let patch = Patch::from_stored(rect, decode_cells(&at, stored, format, rect.area())?).map_err(|e| at.bad(e))?;
-    Ok(LoggedPatch { robot_id: at.id_column(row, "robot_id")?, seq: at.count(row, "seq")?, patch })
+    let logged = LoggedPatch { robot_id: at.id_column(row, "robot_id")?, seq: at.count(row, "seq")?, patch };
+    Ok((at.id_column(row, "id")?, logged))
+}
+
+/// A mission's map snapshot, its bytes unchecked until they are decoded
+/// (see [`crate::store::StoredMap::fuse`]).
+pub(super) fn snapshot_from_row(row: &SqliteRow) -> Result<MapSnapshot, StoreError> {
+    let at = At::row("map_snapshots", row, "mission_id")?;
+    Ok(MapSnapshot {
+        mission_id: at.id_column(row, "mission_id")?,
+        through_patch_id: at.id_column(row, "through_patch_id")?,
+        folded: at.count(row, "folded")?,
+        bytes: at.get(row, "state")?,
+        raw_bytes: at.count(row, "raw_bytes")?,
+    })
 }
 
 pub(super) fn bid_from_row(row: &SqliteRow) -> Result<Bid, StoreError> {

@@ -6,7 +6,7 @@ use super::*;
 use crate::domain::{
     Actor, Leftover, LeftoverReason, LifecycleSettings, MissionState, Pose, ReplanSettings, RobotState, TaskState,
 };
-use crate::store::{FailureKind, MissionCounters, TaskChange};
+use crate::store::{FailureKind, LoggedPatch, MapSnapshot, MissionCounters, TaskChange, compact};
 use exploration::fusion::Patch;
 use exploration::grid::{Cell, CellRect, GridFrame};
 use exploration::math::Point2;
@@ -166,6 +166,8 @@ async fn a_changeset_round_trips_through_a_real_file() {
                     gain_region: (Point2::new(0.0, 0.0), Point2::new(1.0, 1.0)),
                 }],
             )),
+            snapshot: None,
+            forget_folded: None,
             at: Some(Timestamp(3_000)),
         })
         .await
@@ -208,7 +210,7 @@ async fn a_changeset_round_trips_through_a_real_file() {
     assert_eq!(store.bids(robot.id).await.unwrap().len(), 1);
     let missions = store.missions().await.unwrap();
     assert_eq!(store.robots(&missions[0]).await.unwrap(), vec![robot.clone()]);
-    let patches = store.patches(&missions[0]).await.unwrap();
+    let patches = store.stored_map(&missions[0], None).await.unwrap().patches;
     assert_eq!(patches.len(), 1);
     assert_eq!(patches[0].seq, 5);
     assert_eq!(patches[0].patch.rect(), rect);
@@ -275,18 +277,20 @@ async fn a_failed_changeset_writes_nothing() {
     assert_eq!(store.robots(&mission).await.unwrap(), vec![robot]);
 }
 
-/// A database holding one mission with one robot, one task and one patch,
-/// closed again; returns the file.
+/// A database holding one mission with one robot, one patch folded into
+/// its map snapshot and one after it, closed again; returns the file.
 async fn stored_mission(dir: &std::path::Path) -> std::path::PathBuf {
     let path = dir.join("s.db");
     let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
     let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
     let robot = store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(1)).await.unwrap();
-    let patch = Patch::from_probabilities(CellRect::new(1, 1, 2, 1), &[0.2, 0.9], &[]).unwrap();
-    store
-        .commit(Changeset { patches: vec![LoggedPatch { robot_id: robot.id, seq: 1, patch }], ..Changeset::default() })
-        .await
-        .unwrap();
+    for seq in 1..=2 {
+        let patch = Patch::from_probabilities(CellRect::new(1, 1, 2, 1), &[0.2, 0.9], &[]).unwrap();
+        let changes =
+            Changeset { patches: vec![LoggedPatch { robot_id: robot.id, seq, patch }], ..Changeset::default() };
+        store.commit(changes).await.unwrap();
+    }
+    assert_eq!(compact::fold(&store, &mission, 1).await.unwrap(), 1);
     store.close().await;
     drop(store);
     path
@@ -309,12 +313,16 @@ async fn corrupt_rows_are_refused_naming_table_row_and_column() {
         ("UPDATE robots SET pose_x = 1e9", "robots row 1: (pose_x, pose_y)"),
         ("UPDATE robots SET speed_mps = 0", "robots row 1: speed_mps"),
         ("UPDATE robots SET last_map_seq = -4", "robots row 1: last_map_seq"),
-        ("UPDATE map_patches SET width = 4000000000", "map_patches row 1"),
-        ("UPDATE map_patches SET cells = x'00'", "map_patches row 1: cells"),
-        ("UPDATE map_patches SET cells = x'ffffffff'", "map_patches row 1: cells"),
-        ("UPDATE map_patches SET cells_format = 7", "map_patches row 1: cells_format 7"),
-        ("UPDATE map_patches SET cells_format = 0, cells = x'00'", "map_patches row 1: cells holds 1 bytes"),
-        ("UPDATE map_patches SET cells_format = 0, cells = x'0000807f0000807f'", "map_patches row 1"),
+        ("UPDATE map_patches SET width = 4000000000", "map_patches row 2"),
+        ("UPDATE map_patches SET cells = x'00'", "map_patches row 2: cells"),
+        ("UPDATE map_patches SET cells = x'ffffffff'", "map_patches row 2: cells"),
+        ("UPDATE map_patches SET cells_format = 7", "map_patches row 2: cells_format 7"),
+        ("UPDATE map_patches SET cells_format = 0, cells = x'00'", "map_patches row 2: cells holds 1 bytes"),
+        ("UPDATE map_patches SET cells_format = 0, cells = x'0000807f0000807f'", "map_patches row 2"),
+        ("UPDATE map_snapshots SET state = x'00'", "map_snapshots: the snapshot"),
+        ("UPDATE map_snapshots SET raw_bytes = 1000000000000", "map_snapshots: the snapshot claims"),
+        ("UPDATE map_snapshots SET folded = -1", "map_snapshots row 1: folded"),
+        ("UPDATE map_snapshots SET through_patch_id = 0", "map_snapshots row 1: through_patch_id"),
     ];
     for (edit, expected) in cases {
         let dir = tempfile::tempdir().unwrap();
@@ -329,7 +337,8 @@ async fn corrupt_rows_are_refused_naming_table_row_and_column() {
         let read = async {
             for mission in store.missions().await? {
                 store.robots(&mission).await?;
-                store.patches(&mission).await?;
+                let robots = store.robots(&mission).await?.len();
+                store.stored_map(&mission, None).await?.fuse(&mission.spec.frame, robots)?;
             }
             Ok::<_, StoreError>(())
         };
@@ -382,7 +391,7 @@ async fn a_backup_is_a_consistent_store() {
     let restored = SqliteStore::open(&copy, Durability::Full).await.unwrap();
     let missions = restored.missions().await.unwrap();
     assert_eq!(missions, store.missions().await.unwrap());
-    assert_eq!(restored.patches(&missions[0]).await.unwrap().len(), 1);
+    assert_eq!(restored.stored_map(&missions[0], None).await.unwrap().patches.len(), 1);
 }
 
 /// Changesets that arrive together are written together; one that breaks a
@@ -456,4 +465,94 @@ async fn what_follows_a_refused_changeset_is_not_written() {
     assert_eq!([first, rest].concat(), all);
     assert!(all.is_sorted(), "oldest first");
     assert!(store.events(mission.id, u64::MAX, 3).await.unwrap().is_empty(), "a cursor past every rowid");
+}
+
+/// The map of a mission's patches (as each robot sent them), applied in order.
+fn fused(frame: &GridFrame, patches: &[LoggedPatch]) -> exploration::fusion::MapFusion {
+    let mut fusion = exploration::fusion::MapFusion::new(*frame);
+    for logged in patches {
+        fusion.apply(logged.robot_id, &logged.patch).unwrap();
+    }
+    fusion
+}
+
+/// A fusion's state, bit for bit.
+fn bits(fusion: &exploration::fusion::MapFusion) -> (Vec<u8>, Vec<u32>) {
+    (fusion.grid().cells().to_vec(), fusion.parts().sum.iter().map(|v| v.to_bits()).collect())
+}
+
+/// Folding the log keeps the map exactly as it was, across a restart, and
+/// removes the folded patches from the log; a fold older than the stored
+/// snapshot changes nothing.
+#[tokio::test]
+async fn a_folded_patch_log_restores_the_same_map() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("fold.db");
+    let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
+    let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
+    let frame = mission.spec.frame;
+    let mut robots = Vec::new();
+    for name in ["r1", "r2", "r3"] {
+        robots
+            .push(store.create_robot(mission.id, &robot_spec(name), &|_| HASH.to_owned(), Timestamp(1)).await.unwrap());
+    }
+    // Overlapping patches whose values change, so that the sums depend on
+    // the order they were added in.
+    let mut rng = exploration::rng::SplitMix64::new(11);
+    let mut sent = Vec::new();
+    let mut log = |store: &SqliteStore, seq: u64, sent: &mut Vec<LoggedPatch>| {
+        let robot = robots[rng.below(3) as usize].id;
+        let (x, y) = (rng.below(30) as i32, rng.below(20) as i32);
+        let rect = CellRect::new(x, y, 10, 10);
+        let values: Vec<f32> = (0..100).map(|_| rng.below(1000) as f32 / 999.0).collect();
+        let unknown: Vec<bool> = (0..100).map(|_| rng.below(5) == 0).collect();
+        let patch = Patch::from_probabilities(rect, &values, &unknown).unwrap();
+        let logged = LoggedPatch { robot_id: robot, seq, patch };
+        sent.push(logged.clone());
+        let store = store.clone();
+        async move { store.commit(Changeset { patches: vec![logged], ..Changeset::default() }).await.unwrap() }
+    };
+    for seq in 1..=30 {
+        log(&store, seq, &mut sent).await;
+    }
+    assert_eq!(compact::fold(&store, &mission, 20).await.unwrap(), 20);
+    assert_eq!(store.unfolded_patches(mission.id).await.unwrap(), 10);
+    assert_eq!(store.folded_patches(mission.id).await.unwrap(), 20, "still in the file, never read again");
+    let stored = store.stored_map(&mission, None).await.unwrap();
+    assert_eq!(stored.snapshot.as_ref().map(|s| s.folded), Some(20));
+    let names = |patches: &[LoggedPatch]| patches.iter().map(|p| (p.robot_id, p.seq)).collect::<Vec<_>>();
+    assert_eq!(names(&stored.patches), names(&sent[20..]));
+    assert_eq!(bits(&stored.fuse(&frame, 3).unwrap()), bits(&fused(&frame, &sent)));
+
+    // Folded again, with patches logged after: still the same map.
+    assert_eq!(compact::fold(&store, &mission, 20).await.unwrap(), 10);
+    assert_eq!(store.unfolded_patches(mission.id).await.unwrap(), 0);
+    let never = tokio_util::sync::CancellationToken::new();
+    assert_eq!(compact::forget(&store, mission.id, Duration::ZERO, &never).await.unwrap(), 1);
+    assert_eq!(store.folded_patches(mission.id).await.unwrap(), 0);
+    let rows: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM map_patches").fetch_one(&store.pool).await.unwrap();
+    assert_eq!(rows, 0, "the folded patches are gone from the file");
+    for seq in 31..=35 {
+        log(&store, seq, &mut sent).await;
+    }
+    let newer = store.stored_map(&mission, None).await.unwrap();
+    assert_eq!(newer.snapshot.as_ref().map(|s| s.folded), Some(30));
+    assert_eq!(bits(&newer.fuse(&frame, 3).unwrap()), bits(&fused(&frame, &sent)));
+
+    // A stale fold (through an earlier patch) neither replaces the snapshot
+    // nor removes anything.
+    let stale = MapSnapshot { through_patch_id: 1, folded: 1, ..stored.snapshot.clone().unwrap() };
+    store.commit(Changeset { snapshot: Some(stale), ..Changeset::default() }).await.unwrap();
+    let after_stale = store.stored_map(&mission, None).await.unwrap();
+    assert_eq!(after_stale.snapshot, newer.snapshot);
+    assert_eq!(after_stale.patches.len(), 5);
+    assert_eq!(compact::forget(&store, mission.id, Duration::ZERO, &never).await.unwrap(), 0);
+    assert_eq!(store.unfolded_patches(mission.id).await.unwrap(), 5, "forgetting never removes an unfolded patch");
+
+    store.close().await;
+    drop(store);
+    let reopened = SqliteStore::open(&path, Durability::Full).await.unwrap();
+    let missions = reopened.missions().await.unwrap();
+    let restarted = reopened.stored_map(&missions[0], None).await.unwrap();
+    assert_eq!(bits(&restarted.fuse(&frame, 3).unwrap()), bits(&fused(&frame, &sent)));
 }

@@ -12,7 +12,7 @@ use sqlx::SqliteConnection;
 
 use super::rows::{CELLS_LZ4, critical_points_json, encode_cells, leftovers_json, segments_json};
 use crate::domain::{MissionId, RobotId, RobotRecord, TaskId, TaskState, Timestamp, Transition};
-use crate::store::{Changeset, LoggedPatch, MissionCounters, StoreError};
+use crate::store::{Changeset, LoggedPatch, MapSnapshot, MissionCounters, StoreError};
 
 /// Writes a group of changesets, in order, inside the transaction open on
 /// `tx`. Robot records and mission counters are written whole, so only the
@@ -67,6 +67,44 @@ async fn write_patches(tx: &mut SqliteConnection, patches: &[(&LoggedPatch, Time
             .push_bind(now.millis());
     });
     insert.build().execute(&mut *tx).await?;
+    Ok(())
+}
+
+/// Replaces a mission's map snapshot by a newer one. An older snapshot
+/// than the stored one changes nothing.
+async fn write_snapshot(tx: &mut SqliteConnection, snapshot: &MapSnapshot, now: Timestamp) -> Result<(), StoreError> {
+    sqlx::query(
+        "INSERT INTO map_snapshots (mission_id, through_patch_id, folded, state, raw_bytes, taken_at)
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6)
+         ON CONFLICT (mission_id) DO UPDATE SET through_patch_id = excluded.through_patch_id,
+             folded = excluded.folded, state = excluded.state, raw_bytes = excluded.raw_bytes,
+             taken_at = excluded.taken_at
+         WHERE excluded.through_patch_id > map_snapshots.through_patch_id",
+    )
+    .bind(snapshot.mission_id as i64)
+    .bind(snapshot.through_patch_id as i64)
+    .bind(snapshot.folded as i64)
+    .bind(&snapshot.bytes)
+    .bind(snapshot.raw_bytes as i64)
+    .bind(now.millis())
+    .execute(&mut *tx)
+    .await?;
+    Ok(())
+}
+
+/// Removes at most `limit` of a mission's oldest patches that its stored
+/// snapshot folds: never one it does not.
+async fn forget_folded(tx: &mut SqliteConnection, mission_id: MissionId, limit: u32) -> Result<(), StoreError> {
+    sqlx::query(
+        "DELETE FROM map_patches WHERE id IN (
+             SELECT id FROM map_patches WHERE mission_id = ?1
+                 AND id <= (SELECT through_patch_id FROM map_snapshots WHERE mission_id = ?1)
+             ORDER BY id LIMIT ?2)",
+    )
+    .bind(mission_id as i64)
+    .bind(i64::from(limit))
+    .execute(&mut *tx)
+    .await?;
     Ok(())
 }
 
@@ -276,6 +314,12 @@ async fn body(tx: &mut SqliteConnection, changes: &Changeset, now: Timestamp) ->
             .execute(&mut *tx)
             .await?;
         }
+    }
+    if let Some(snapshot) = &changes.snapshot {
+        write_snapshot(tx, snapshot, now).await?;
+    }
+    if let Some((mission_id, limit)) = changes.forget_folded {
+        forget_folded(tx, mission_id, limit).await?;
     }
     Ok(())
 }
