@@ -384,6 +384,20 @@ fn a_blank_operator_token_refuses_to_start() {
     }
 }
 
+/// A planner thread count is refused outside 1..=1024 before any thread
+/// is started (a mistyped `--planner-threads 1000000` spawned them all).
+#[test]
+fn absurd_planner_thread_counts_refuse_to_start() {
+    let dir = tempfile::tempdir().unwrap();
+    for flag in ["--planner-threads", "--background-planner-threads"] {
+        for count in ["0", "1000000"] {
+            let (ok, stderr) = coordinator_exits(&[flag, count], &dir.path().join("t.db"));
+            assert!(!ok, "{flag} {count} must not start");
+            assert!(stderr.contains(&format!("{flag} must be 1 to 1024")), "{stderr}");
+        }
+    }
+}
+
 /// Defect 7: a corrupt value in the database panicked or aborted at start
 /// (negative durations, 1e300 seconds, 2e7-cell grids) or was truncated.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

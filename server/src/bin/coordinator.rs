@@ -18,6 +18,9 @@ use coordinator::{Compaction, Config, ConnectionLimits, Durability, ExecutiveSet
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+/// Most threads either planner setting may ask for.
+const MAX_PLANNER_THREADS: usize = 1024;
+
 /// The exploration executive: coordinates robot fleets exploring unknown buildings.
 #[derive(Debug, Parser)]
 #[command(version, about)]
@@ -130,6 +133,16 @@ async fn main() -> anyhow::Result<()> {
         DurabilityArg::Normal => Durability::Normal,
     };
     config.compaction.after_patches = args.compact_after_patches;
+    for (flag, threads) in
+        [("--planner-threads", args.planner_threads), ("--background-planner-threads", args.background_planner_threads)]
+    {
+        // Each planning thread is spawned at start-up: a mistyped count must
+        // not start a million of them.
+        anyhow::ensure!(
+            threads.is_none_or(|n| (1..=MAX_PLANNER_THREADS).contains(&n)),
+            "{flag} must be 1 to {MAX_PLANNER_THREADS}"
+        );
+    }
     let defaults = ExecutiveSettings::default();
     config.executive = ExecutiveSettings {
         planner_threads: args.planner_threads.unwrap_or(defaults.planner_threads).max(1),
