@@ -143,8 +143,12 @@ pub struct ProcessReport {
 pub struct CapacityReport {
     /// Concurrent callers.
     pub callers: usize,
-    /// Empty unary calls (the health check) per second.
+    /// Empty unary calls (the health check) per second, each caller going
+    /// round its robots' own connections as the map updates do.
     pub empty_calls_per_s: f64,
+    /// The same over one shared connection, where HTTP/2 writes many
+    /// answers at once: the transport at its cheapest.
+    pub empty_calls_one_connection_per_s: f64,
     /// Map updates (a sensor footprint each) per second.
     pub map_updates_per_s: f64,
     /// Map updates as a share of empty calls.
@@ -262,12 +266,15 @@ impl LoadReport {
         }
         if let Some(c) = &self.capacity {
             out += &format!(
-                "capacity ({} callers): empty call {:.0}/s, map update {:.0}/s = {:.0} % of it (p99 {:.1} ms)\n",
+                "capacity ({} callers): empty call {:.0}/s, map update {:.0}/s = {:.0} % of it (p99 {:.1} ms); \
+                 empty call over one shared connection {:.0}/s ({:.0} %)\n",
                 c.callers,
                 c.empty_calls_per_s,
                 c.map_updates_per_s,
                 100.0 * c.share,
-                c.map_update_latency_ms.p99
+                c.map_update_latency_ms.p99,
+                c.empty_calls_one_connection_per_s,
+                100.0 * c.map_updates_per_s / c.empty_calls_one_connection_per_s.max(1e-9)
             );
         }
         out
@@ -337,6 +344,8 @@ struct Robot {
     id: u64,
     mission: u64,
     client: Fleet,
+    /// Its own connection, which `client` uses.
+    connection: Channel,
     /// Its newest assignment, from its stream, and when it arrived.
     assignment: watch::Receiver<Option<(pb::Assignment, Instant)>>,
     /// Highest map sequence number acknowledged, and how many were.
@@ -471,7 +480,8 @@ async fn run_against(
             let mut registrar = FleetClient::with_interceptor(channel(url)?, bearer(token)?);
             let answer = registrar.register_robot(registration).await.map_err(rpc("RegisterRobot"))?.into_inner();
             let id = answer.robot.map_or(0, |r| r.id);
-            let client = FleetClient::with_interceptor(channel(url)?, bearer(Some(&answer.token))?)
+            let connection = channel(url)?;
+            let client = FleetClient::with_interceptor(connection.clone(), bearer(Some(&answer.token))?)
                 .max_decoding_message_size(exploration_proto::MAX_MESSAGE_BYTES);
             let (tx, rx) = watch::channel(None);
             tokio::spawn(follow(client.clone(), id, tx, stop.clone()));
@@ -480,6 +490,7 @@ async fn run_against(
                     id,
                     mission: mission.id,
                     client,
+                    connection,
                     assignment: rx,
                     acked_seq: AtomicU64::new(0),
                     acked: AtomicU64::new(0),
@@ -772,8 +783,13 @@ async fn drive(
     }
 }
 
+/// A robot and where it stands.
+type Placed = (Arc<Robot>, Point2);
+
 /// The closed-loop phase: as many empty calls, then as many map updates, as
-/// `callers` concurrent callers get answered.
+/// `callers` concurrent callers get answered. Each caller goes round its
+/// share of the robots, on each robot's own connection, for both kinds of
+/// call; the empty call is also timed over one shared connection.
 async fn capacity(
     url: &str,
     config: &LoadConfig,
@@ -781,76 +797,104 @@ async fn capacity(
     world: &Arc<World>,
 ) -> Result<CapacityReport, SimError> {
     let callers = config.capacity_callers.max(1);
-    let health_channel = exploration_proto::client::endpoint(url, config.tls.as_ref())
+    let shares: Arc<Vec<Vec<Placed>>> = Arc::new(
+        (0..callers)
+            .map(|c| robots.iter().skip(c).step_by(callers).cloned().collect::<Vec<_>>())
+            .filter(|mine| !mine.is_empty())
+            .collect(),
+    );
+    let shared = exploration_proto::client::endpoint(url, config.tls.as_ref())
         .map_err(|e| SimError::Executive(e.to_string()))?
         .connect_lazy();
-    let go = Arc::new(AtomicBool::new(true));
-    let count = Arc::new(AtomicU64::new(0));
-    let mut workers = JoinSet::new();
-    for _ in 0..callers {
-        let mut health = tonic_health::pb::health_client::HealthClient::new(health_channel.clone());
-        let (go, count) = (Arc::clone(&go), Arc::clone(&count));
-        workers.spawn(async move {
-            while go.load(Ordering::Acquire) {
-                let request = tonic_health::pb::HealthCheckRequest { service: String::new() };
-                if health.check(request).await.is_ok() {
-                    count.fetch_add(1, Ordering::AcqRel);
-                }
-            }
-        });
-    }
-    let started = Instant::now();
-    tokio::time::sleep(config.capacity).await;
-    go.store(false, Ordering::Release);
-    let empty = count.load(Ordering::Acquire) as f64 / started.elapsed().as_secs_f64();
-    while workers.join_next().await.is_some() {}
-
-    go.store(true, Ordering::Release);
-    count.store(0, Ordering::Release);
-    let latency = Arc::new(Mutex::new(new_histogram()));
-    for c in 0..callers {
-        let mine: Vec<(Arc<Robot>, Point2)> = robots.iter().skip(c).step_by(callers).cloned().collect();
-        if mine.is_empty() {
-            continue;
-        }
-        let (go, count, latency, world) =
-            (Arc::clone(&go), Arc::clone(&count), Arc::clone(&latency), Arc::clone(world));
-        let range = config.sensor_range_m;
-        workers.spawn(async move {
-            let mut k = 0;
-            while go.load(Ordering::Acquire) {
-                let (robot, at) = &mine[k % mine.len()];
-                k += 1;
-                let seq = robot.next_seq.fetch_add(1, Ordering::AcqRel);
-                let request = pb::UpdateMapRequest {
-                    robot_id: robot.id,
-                    seq,
-                    pose: Some(pose_at(*at, 0.0)),
-                    patches: vec![footprint(&world, *at, range)],
-                    ..Default::default()
-                };
-                let sent = Instant::now();
-                if robot.client.clone().update_map(request).await.is_ok() {
-                    count.fetch_add(1, Ordering::AcqRel);
-                    let micros = sent.elapsed().as_micros().max(1) as u64;
-                    latency.lock().unwrap_or_else(|e| e.into_inner()).saturating_record(micros);
-                }
-            }
-        });
-    }
-    let started = Instant::now();
-    tokio::time::sleep(config.capacity).await;
-    go.store(false, Ordering::Release);
-    let updates = count.load(Ordering::Acquire) as f64 / started.elapsed().as_secs_f64();
-    while workers.join_next().await.is_some() {}
-    let latency = Latency::of(&latency.lock().unwrap_or_else(|e| e.into_inner()));
+    let empty_one_connection = closed_loop(config.capacity, callers, None, move |_| empty_call(shared.clone())).await.0;
+    let mine = Arc::clone(&shares);
+    let empty = closed_loop(config.capacity, shares.len(), None, move |c| {
+        let (robot, _) = &mine[c.caller][c.round % mine[c.caller].len()];
+        empty_call(robot.connection.clone())
+    })
+    .await
+    .0;
+    let (range, world, mine) = (config.sensor_range_m, Arc::clone(world), Arc::clone(&shares));
+    let (updates, latency) = closed_loop(config.capacity, shares.len(), Some(new_histogram()), move |c| {
+        let (robot, at) = &mine[c.caller][c.round % mine[c.caller].len()];
+        let request = pb::UpdateMapRequest {
+            robot_id: robot.id,
+            seq: robot.next_seq.fetch_add(1, Ordering::AcqRel),
+            pose: Some(pose_at(*at, 0.0)),
+            patches: vec![footprint(&world, *at, range)],
+            ..Default::default()
+        };
+        let mut client = robot.client.clone();
+        async move { client.update_map(request).await.is_ok() }
+    })
+    .await;
+    let latency = Latency::of(&latency.unwrap_or_else(new_histogram));
     Ok(CapacityReport {
         callers,
         empty_calls_per_s: empty,
+        empty_calls_one_connection_per_s: empty_one_connection,
         map_updates_per_s: updates,
         share: if empty > 0.0 { updates / empty } else { 0.0 },
         map_update_latency_ms: latency,
     })
+}
+
+/// One empty unary call on `connection`; whether it was answered OK.
+fn empty_call(connection: Channel) -> impl std::future::Future<Output = bool> + Send {
+    let mut health = tonic_health::pb::health_client::HealthClient::new(connection);
+    async move { health.check(tonic_health::pb::HealthCheckRequest { service: String::new() }).await.is_ok() }
+}
+
+/// Which call a closed-loop caller makes next.
+#[derive(Debug, Clone, Copy)]
+struct Turn {
+    caller: usize,
+    round: usize,
+}
+
+/// `callers` callers each making the call `call` returns, one after the
+/// other, for `length`: calls answered OK per second, and their latency
+/// when `latency` is given.
+async fn closed_loop<F, Fut>(
+    length: Duration,
+    callers: usize,
+    latency: Option<hdrhistogram::Histogram<u64>>,
+    call: F,
+) -> (f64, Option<hdrhistogram::Histogram<u64>>)
+where
+    F: Fn(Turn) -> Fut + Send + Sync + 'static,
+    Fut: std::future::Future<Output = bool> + Send + 'static,
+{
+    let go = Arc::new(AtomicBool::new(true));
+    let count = Arc::new(AtomicU64::new(0));
+    let timed = latency.is_some();
+    let latency = Arc::new(Mutex::new(latency.unwrap_or_else(new_histogram)));
+    let call = Arc::new(call);
+    let mut workers = JoinSet::new();
+    for caller in 0..callers {
+        let (go, count, latency, call) = (Arc::clone(&go), Arc::clone(&count), Arc::clone(&latency), Arc::clone(&call));
+        workers.spawn(async move {
+            let mut round = 0;
+            while go.load(Ordering::Acquire) {
+                let sent = Instant::now();
+                if call(Turn { caller, round }).await {
+                    count.fetch_add(1, Ordering::AcqRel);
+                    if timed {
+                        let micros = sent.elapsed().as_micros().max(1) as u64;
+                        latency.lock().unwrap_or_else(|e| e.into_inner()).saturating_record(micros);
+                    }
+                }
+                round += 1;
+            }
+        });
+    }
+    let started = Instant::now();
+    tokio::time::sleep(length).await;
+    go.store(false, Ordering::Release);
+    let rate = count.load(Ordering::Acquire) as f64 / started.elapsed().as_secs_f64();
+    while workers.join_next().await.is_some() {}
+    let histogram = timed.then(|| latency.lock().unwrap_or_else(|e| e.into_inner()).clone());
+    (rate, histogram)
 }
 
 /// CPU time of a process so far, seconds (Linux `/proc`; 0 elsewhere).

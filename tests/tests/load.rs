@@ -31,6 +31,7 @@ fn a_small_load_run_reports_every_figure_and_loses_nothing() {
     let updates = report["map_updates_acknowledged"].as_u64().unwrap();
     assert!((20..=40).contains(&updates), "{updates}");
     assert!(report["capacity"]["empty_calls_per_s"].as_f64().unwrap() > 0.0);
+    assert!(report["capacity"]["empty_calls_one_connection_per_s"].as_f64().unwrap() > 0.0);
     assert!(report["capacity"]["map_updates_per_s"].as_f64().unwrap() > 0.0);
     assert!(report["executive"]["shared_with_load_generator"].as_bool().unwrap());
     // A trigger is missed only when older than the grace at the end: none in 3 s.
