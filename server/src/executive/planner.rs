@@ -251,6 +251,11 @@ impl Planner {
     /// Plans a mission off the request path (see the module).
     async fn plan_off_path(&self, cell: &MissionCell) {
         for _ in 0..ATTEMPTS {
+            // The turn first, then the snapshot: a plan waits its turn
+            // behind other missions' plans, and a snapshot taken before
+            // the wait missed what arrived during it, such as the robot
+            // whose arrival woke the planner, which then waited a second turn.
+            let Ok(_permit) = self.permits.acquire().await else { return };
             let (job, basis, reason, now, policy) = {
                 let mission = cell.lock().await;
                 let now = self.clock.now();
@@ -259,7 +264,6 @@ impl Planner {
                 let policy = mission.record().spec.policy.name();
                 (mission.planning_job(threads), mission.plan_basis(), reason, now, policy)
             };
-            let Ok(_permit) = self.permits.acquire().await else { return };
             self.running.fetch_add(1, Ordering::AcqRel);
             let started = std::time::Instant::now();
             let outcome = self.threads_pool.run(move || job.run()).await;
@@ -299,8 +303,86 @@ fn background_budget(threads: usize, background: usize) -> usize {
 
 #[cfg(test)]
 mod tests {
-    use super::background_budget;
+    use std::sync::Arc;
+    use std::sync::atomic::AtomicU64;
+
+    use exploration::fusion::Patch;
+    use exploration::grid::{CellRect, GridFrame};
+    use exploration::math::Point2;
+    use exploration::policy::{Capabilities, PolicyConfig};
+
+    use super::{MissionCell, Planner, background_budget};
     use crate::ExecutiveSettings;
+    use crate::clock::Clock;
+    use crate::domain::{LifecycleSettings, MissionSpec, Pose, ReplanSettings, RobotSpec, Timestamp};
+    use crate::executive::mission::Mission;
+    use crate::executive::writer::Writer;
+    use crate::metrics::Metrics;
+    use crate::store::{Changeset, LoggedPatch, SqliteStore, Store};
+
+    /// A plan waits its turn before it takes its snapshot, so that what
+    /// arrives during the wait (here a robot joining) is in the plan. Taken
+    /// before the wait, the snapshot left the robot out of it (this test
+    /// fails so).
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_plan_takes_its_snapshot_after_waiting_its_turn() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = SqliteStore::open(&dir.path().join("p.db"), crate::Durability::Full).await.unwrap();
+        let spec = MissionSpec {
+            name: "turns".into(),
+            frame: GridFrame::new(0.1, Point2::origin(), 40, 20),
+            policy: PolicyConfig::default_for("nearest").unwrap(),
+            replan: ReplanSettings::default(),
+            scoped_by_communication: false,
+            lockstep: false,
+            lifecycle: LifecycleSettings::default(),
+        };
+        let record = store.create_mission(&spec, Timestamp(1)).await.unwrap();
+        let mut robots = Vec::new();
+        for (name, x) in [("a", 0.5), ("b", 1.0), ("c", 1.5)] {
+            let capabilities =
+                Capabilities { sensor_range_m: 1.0, field_of_view_rad: 6.0, speed_mps: 0.5, footprint_radius_m: 0.0 };
+            let pose = Pose { position: Point2::new(x, 0.5), heading: 0.0 };
+            let spec = RobotSpec { name: name.into(), capabilities, pose };
+            robots.push(store.create_robot(record.id, &spec, &|_| "0".repeat(64), Timestamp(1)).await.unwrap());
+        }
+        let now = tokio::time::Instant::now();
+        let mut mission = Mission::new(record, now);
+        for robot in &robots[..2] {
+            mission.insert_robot(robot.clone(), now);
+        }
+        let known = Patch::from_probabilities(CellRect::new(0, 0, 20, 20), &[0.1; 400], &[]).unwrap();
+        let patches = vec![LoggedPatch { robot_id: robots[0].id, seq: 1, patch: known }];
+        mission.apply(Changeset { patches, ..Changeset::default() });
+
+        let store: Arc<dyn Store> = Arc::new(store);
+        let metrics = Arc::new(Metrics::new());
+        let ids = Arc::new(AtomicU64::new(0));
+        let writer = Writer::new(store, Clock::default());
+        let planner = Planner::new(writer, Clock::default(), 1, 1, ids, Arc::clone(&metrics), Default::default());
+        let cell = Arc::new(MissionCell::new(mission));
+        // Another mission's plan holds the only turn.
+        let turn = planner.permits.try_acquire().unwrap();
+        planner.start(Arc::clone(&cell));
+        cell.wake.notify_one();
+        for _ in 0..10 {
+            tokio::task::yield_now().await;
+        }
+        // The planner is waiting its turn; a robot joins meanwhile.
+        cell.lock().await.insert_robot(robots[2].clone(), now);
+        drop(turn);
+        // The plan is committed through the store's writer thread.
+        while cell.lock().await.record().replans == 0 {
+            tokio::task::yield_now().await;
+        }
+        assert_eq!(metrics.stale_plans.get(), 0, "the plan was made once");
+        let mission = cell.lock().await;
+        for robot in &robots {
+            assert!(mission.robot(robot.id).unwrap().current_task.is_some(), "{} has a task", robot.name);
+        }
+        drop(mission);
+        planner.shutdown().await;
+    }
 
     #[test]
     fn background_plans_leave_the_requests_a_core_when_there_is_more_than_one() {
