@@ -223,7 +223,12 @@ pub async fn run_with(
         }
     };
     let sweeper = tokio::spawn(sweep_until(executive.clone(), clock, streams_end.clone()));
-    let compactor = tokio::spawn(store::compact::run(Arc::new(store.clone()), config.compaction, streams_end.clone()));
+    let compactor = tokio::spawn(store::compact::run(
+        Arc::new(store.clone()),
+        config.compaction,
+        Arc::clone(&metrics),
+        streams_end.clone(),
+    ));
     let http_server = http_listener.map(|listener| {
         let stop = streams_end.clone().cancelled_owned();
         let app = http::router(Arc::clone(&executive), auth.clone(), streams_end.clone());

@@ -70,6 +70,8 @@ pub struct Metrics {
     pub store_commit: Histogram,
     /// Changesets committed per transaction.
     pub commit_group: Histogram,
+    /// Map patches folded into map snapshots (see `store::compact`).
+    pub patches_folded: Counter,
     /// Calls refused to shed load, by reason.
     pub shed: Family<Label, Counter>,
     /// Missions by state (at the scrape).
@@ -101,6 +103,7 @@ impl Metrics {
             planner_busy: Gauge::default(),
             store_commit: latency_histogram(),
             commit_group: Histogram::new(exponential_buckets(1.0, 2.0, 10)),
+            patches_folded: Counter::default(),
             shed: Family::default(),
             missions: Family::default(),
             robots: Family::default(),
@@ -124,6 +127,11 @@ impl Metrics {
         );
         registry.register("store_commit_seconds", "Time to commit one transaction", metrics.store_commit.clone());
         registry.register("store_commit_group", "Changesets committed per transaction", metrics.commit_group.clone());
+        registry.register(
+            "patches_folded",
+            "Map patches folded into map snapshots and so out of the patch log",
+            metrics.patches_folded.clone(),
+        );
         registry.register("shed", "Calls refused to shed load, by reason", metrics.shed.clone());
         registry.register("missions", "Missions by state", metrics.missions.clone());
         registry.register("robots", "Robots by state (lost robots as lost)", metrics.robots.clone());

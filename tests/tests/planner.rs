@@ -170,3 +170,41 @@ async fn one_missions_map_updates_share_the_disks_flushes() {
     assert!(listed.robots.iter().all(|r| r.last_map_seq == 10), "{:?}", listed.robots);
     exec.stop().await;
 }
+
+/// The executive folds a mission's patch log while it runs (here after
+/// every 4 patches, looked at every 20 ms), the metric counts the folded
+/// patches, and the log in the file holds only the patches after them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_patch_log_is_folded_while_the_executive_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("fold.db");
+    let mut config = coordinator::Config::new(&db);
+    config.compaction = coordinator::Compaction { after_patches: 4, period: std::time::Duration::from_millis(20) };
+    let exec = TestExecutive::start_with_http(config).await;
+    let http = exec.http.unwrap();
+    let mut missions = exec.missions();
+    let mission = common::create_mission(&mut missions, 40, 20, "nearest").await;
+    let mut fleet = exec.fleet();
+    let robot = register(&mut fleet, mission.id, "r", 0.5, 0.5).await;
+    for seq in 1..=9u64 {
+        let x = (seq as u32 * 3) % 30;
+        fleet.update_map(update(robot.id, seq, 0.5, 0.5, vec![patch(x, 0, 8, 8, 0.1)])).await.unwrap();
+    }
+    let map_before = missions.get_map(pb::GetMapRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    // The compactor runs on its own period: wait for the metric, bounded.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    while metric(&common::http_get(http, "/metrics").await, "coordinator_patches_folded_total") < 8.0 {
+        assert!(std::time::Instant::now() < deadline, "nothing was folded in a minute");
+        tokio::task::yield_now().await;
+    }
+    exec.stop().await;
+
+    let store = coordinator::SqliteStore::open(&db, coordinator::Durability::Full).await.unwrap();
+    assert_eq!(coordinator::store::Store::unfolded_patches(&store, mission.id).await.unwrap(), 1);
+    store.close().await;
+    drop(store);
+    let exec = TestExecutive::start(&db).await;
+    let map_after = exec.missions().get_map(pb::GetMapRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_eq!(map_after.cells, map_before.cells);
+    exec.stop().await;
+}

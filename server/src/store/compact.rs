@@ -23,6 +23,7 @@ use tokio_util::sync::CancellationToken;
 
 use super::{Changeset, MapSnapshot, Store, StoreError, snapshot};
 use crate::domain::{MissionId, MissionRecord};
+use crate::metrics::Metrics;
 
 /// When the compactor folds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -42,7 +43,7 @@ impl Default for Compaction {
 
 /// Folds every mission's log whenever it passes `compaction.after_patches`,
 /// until `stop`.
-pub async fn run(store: Arc<dyn Store>, compaction: Compaction, stop: CancellationToken) {
+pub async fn run(store: Arc<dyn Store>, compaction: Compaction, metrics: Arc<Metrics>, stop: CancellationToken) {
     if compaction.after_patches == 0 {
         return;
     }
@@ -53,7 +54,7 @@ pub async fn run(store: Arc<dyn Store>, compaction: Compaction, stop: Cancellati
             () = stop.cancelled() => return,
             _ = tick.tick() => {}
         }
-        if let Err(e) = fold_all(&*store, compaction.after_patches, &stop).await {
+        if let Err(e) = fold_all(&*store, compaction.after_patches, &metrics, &stop).await {
             tracing::warn!(error = %e, "the patch log could not be folded; tried again later");
         }
     }
@@ -70,12 +71,19 @@ const FORGET_BATCH: u32 = 256;
 const PAUSE: Duration = Duration::from_millis(20);
 
 /// One pass over every mission.
-async fn fold_all(store: &dyn Store, after_patches: u32, stop: &CancellationToken) -> Result<(), StoreError> {
+async fn fold_all(
+    store: &dyn Store,
+    after_patches: u32,
+    metrics: &Metrics,
+    stop: &CancellationToken,
+) -> Result<(), StoreError> {
     for mission in store.missions().await? {
         while !stop.is_cancelled() && store.unfolded_patches(mission.id).await? >= u64::from(after_patches) {
-            if fold(store, &mission, after_patches).await? == 0 {
+            let folded = fold(store, &mission, after_patches).await?;
+            if folded == 0 {
                 break;
             }
+            metrics.patches_folded.inc_by(folded as u64);
             tokio::time::sleep(PAUSE).await;
         }
         forget(store, mission.id, PAUSE, stop).await?;
