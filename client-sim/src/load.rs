@@ -28,6 +28,7 @@ use tonic::Code;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 
+use exploration::fusion::UNKNOWN_PERCENT;
 use exploration::grid::Cell;
 use exploration::math::Point2;
 use exploration_proto::Bearer;
@@ -80,6 +81,42 @@ pub struct LoadConfig {
     pub capacity: Duration,
     /// Concurrent callers in the capacity phase.
     pub capacity_callers: usize,
+    /// How the map patches carry their cells.
+    pub cell_encoding: CellEncoding,
+}
+
+/// How a load's map patches carry their cells.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CellEncoding {
+    /// One byte per cell, as ROS's `nav_msgs/OccupancyGrid` holds it
+    /// (`OCCUPANCY_PERCENT`): what a ROS robot has at hand.
+    #[default]
+    OccupancyPercent,
+    /// A float per cell and a byte of the unknown mask (`PROBABILITY`).
+    Probability,
+}
+
+impl CellEncoding {
+    /// The name `--cell-encoding` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::OccupancyPercent => "occupancy-percent",
+            Self::Probability => "probability",
+        }
+    }
+}
+
+impl std::str::FromStr for CellEncoding {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            _ if s == Self::OccupancyPercent.name() => Ok(Self::OccupancyPercent),
+            _ if s == Self::Probability.name() => Ok(Self::Probability),
+            _ => Err(format!("{s:?}: expected occupancy-percent or probability")),
+        }
+    }
 }
 
 /// Latency figures of one kind of call, milliseconds.
@@ -198,17 +235,20 @@ pub struct LoadReport {
     pub executive: Option<ProcessReport>,
     /// The closed-loop phase.
     pub capacity: Option<CapacityReport>,
+    /// How the map patches carried their cells.
+    pub cell_encoding: CellEncoding,
 }
 
 impl LoadReport {
     /// A screen of text.
     pub fn summary(&self) -> String {
         let mut out = format!(
-            "{} missions × {} robots for {:.0} s, {:.0} calls/s offered\n",
+            "{} missions × {} robots for {:.0} s, {:.0} calls/s offered, map patches as {}\n",
             self.missions,
             self.robots / self.missions.max(1),
             self.duration_s,
-            self.offered_per_s
+            self.offered_per_s,
+            self.cell_encoding.name()
         );
         out += &format!(
             "{:<15} {:>9} {:>8} {:>8} {:>8} {:>8}  statuses\n",
@@ -360,8 +400,8 @@ fn pose_at(point: Point2, heading: f64) -> pb::Pose {
 }
 
 /// The footprint of the sensor at `at`: the truth within range, the rest
-/// of the square unknown.
-fn footprint(world: &World, at: Point2, range_m: f64) -> pb::MapPatch {
+/// of the square unknown, in `encoding`.
+fn footprint(world: &World, at: Point2, range_m: f64, encoding: CellEncoding) -> pb::MapPatch {
     let frame = world.frame;
     let r = (range_m / frame.resolution).ceil() as i32;
     let centre = frame.cell_from_world_unchecked(&at);
@@ -370,28 +410,27 @@ fn footprint(world: &World, at: Point2, range_m: f64) -> pb::MapPatch {
     let x1 = (centre.x + r).clamp(0, frame.width as i32 - 1);
     let y1 = (centre.y + r).clamp(0, frame.height as i32 - 1);
     let (width, height) = ((x1 - x0 + 1) as u32, (y1 - y0 + 1) as u32);
-    let mut values = Vec::with_capacity((width * height) as usize);
-    let mut unknown = Vec::with_capacity(values.capacity());
-    for y in y0..=y1 {
-        for x in x0..=x1 {
-            let cell = Cell::new(x, y);
-            // Squared, in integers: the generator shares the machine with the
-            // executive, and a square root per cell was a tenth of its CPU.
-            let inside = cell.distance_squared(centre) <= i64::from(r) * i64::from(r);
-            let blocked = world.blocked[frame.index(cell)];
-            values.push(if blocked { 0.95 } else { 0.05 });
-            unknown.push(u8::from(!inside));
+    // Per cell: None where the sensor does not reach, else whether it is blocked.
+    let cells = (y0..=y1).flat_map(|y| (x0..=x1).map(move |x| Cell::new(x, y))).map(|cell| {
+        // Squared, in integers: the generator shares the machine with the
+        // executive, and a square root per cell was a tenth of its CPU.
+        let inside = cell.distance_squared(centre) <= i64::from(r) * i64::from(r);
+        inside.then(|| world.blocked[frame.index(cell)])
+    });
+    let mut patch = pb::MapPatch { x: x0 as u32, y: y0 as u32, width, height, ..Default::default() };
+    match encoding {
+        CellEncoding::OccupancyPercent => {
+            patch.encoding = pb::CellEncoding::OccupancyPercent as i32;
+            patch.occupancy =
+                cells.map(|c| c.map_or(UNKNOWN_PERCENT, |blocked| if blocked { 95 } else { 5 })).collect();
+        }
+        CellEncoding::Probability => {
+            patch.encoding = pb::CellEncoding::Probability as i32;
+            (patch.values, patch.unknown) =
+                cells.map(|c| (if c == Some(true) { 0.95 } else { 0.05 }, u8::from(c.is_none()))).unzip();
         }
     }
-    pb::MapPatch {
-        x: x0 as u32,
-        y: y0 as u32,
-        width,
-        height,
-        encoding: pb::CellEncoding::Probability as i32,
-        values,
-        unknown,
-    }
+    patch
 }
 
 /// Robot `k`'s start: spread over the reachable cells, the same for a seed.
@@ -586,6 +625,7 @@ async fn run_against(
     }
     let triggers = &*triggers.lock().unwrap_or_else(|e| e.into_inner());
     Ok(LoadReport {
+        cell_encoding: config.cell_encoding,
         missions: config.missions,
         robots: total_robots,
         duration_s: elapsed,
@@ -753,7 +793,7 @@ async fn drive(
                 robot_id: robot.id,
                 seq,
                 pose: Some(pose_at(position, heading)),
-                patches: vec![footprint(&world, position, config.sensor_range_m)],
+                patches: vec![footprint(&world, position, config.sensor_range_m, config.cell_encoding)],
                 ..Default::default()
             };
             let (robot, recorder) = (Arc::clone(&robot), Arc::clone(&recorder));
@@ -814,14 +854,15 @@ async fn capacity(
     })
     .await
     .0;
-    let (range, world, mine) = (config.sensor_range_m, Arc::clone(world), Arc::clone(&shares));
+    let (range, encoding, world, mine) =
+        (config.sensor_range_m, config.cell_encoding, Arc::clone(world), Arc::clone(&shares));
     let (updates, latency) = closed_loop(config.capacity, shares.len(), Some(new_histogram()), move |c| {
         let (robot, at) = &mine[c.caller][c.round % mine[c.caller].len()];
         let request = pb::UpdateMapRequest {
             robot_id: robot.id,
             seq: robot.next_seq.fetch_add(1, Ordering::AcqRel),
             pose: Some(pose_at(*at, 0.0)),
-            patches: vec![footprint(&world, *at, range)],
+            patches: vec![footprint(&world, *at, range, encoding)],
             ..Default::default()
         };
         let mut client = robot.client.clone();
@@ -932,13 +973,22 @@ mod tests {
         let world = crate::generate::generate(crate::generate::Generator::Empty, 10.0, 10.0, 0.5, 1, StartChoice::Auto)
             .unwrap();
         let at = world.frame.world_from_cell(Cell::new(10, 10));
-        let patch = footprint(&world, at, 2.0);
+        let patch = footprint(&world, at, 2.0, CellEncoding::Probability);
         assert_eq!((patch.width, patch.height), (9, 9), "4 cells either side");
         assert_eq!(patch.values.len(), 81);
         let known = patch.unknown.iter().filter(|&&u| u == 0).count();
         assert!(known > 40 && known < 81, "a disc inside its square: {known}");
+        // The same cells as bytes: a percentage where known, 255 elsewhere.
+        let bytes = footprint(&world, at, 2.0, CellEncoding::OccupancyPercent);
+        assert_eq!((bytes.x, bytes.y, bytes.width, bytes.height), (patch.x, patch.y, 9, 9));
+        assert!(bytes.values.is_empty() && bytes.unknown.is_empty());
+        for ((&byte, &unknown), &value) in bytes.occupancy.iter().zip(&patch.unknown).zip(&patch.values) {
+            let expected = if unknown == 1 { UNKNOWN_PERCENT } else { (value * 100.0).round() as u8 };
+            assert_eq!(byte, expected);
+        }
         // At a corner the square is clipped to the map.
-        let corner = footprint(&world, world.frame.world_from_cell(Cell::new(0, 0)), 2.0);
+        let corner =
+            footprint(&world, world.frame.world_from_cell(Cell::new(0, 0)), 2.0, CellEncoding::OccupancyPercent);
         assert_eq!((corner.x, corner.y, corner.width, corner.height), (0, 0, 5, 5));
     }
 

@@ -98,6 +98,11 @@ struct LoadArgs {
     /// Seed of every random choice.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// How the map patches carry their cells: occupancy-percent (a byte
+    /// per cell, as ROS's OccupancyGrid) or probability (a float per cell
+    /// and an unknown mask).
+    #[arg(long, default_value = "occupancy-percent")]
+    cell_encoding: client_sim::load::CellEncoding,
     /// Executive to load; without it one is started in this process.
     #[arg(long)]
     server: Option<String>,
@@ -421,6 +426,7 @@ async fn load(args: LoadArgs) -> anyhow::Result<()> {
         tls: args.tls.settings()?,
         capacity: seconds(args.capacity, "--capacity")?,
         capacity_callers: args.capacity_callers,
+        cell_encoding: args.cell_encoding,
     };
     let report = client_sim::load::run(&config).await?;
     eprint!("{}", report.summary());

@@ -104,6 +104,7 @@ async fn an_operator_lists_overrides_forbids_and_exports_the_map() {
         encoding: pb::CellEncoding::Probability as i32,
         values: vec![0.05; 400],
         unknown: vec![],
+        occupancy: vec![],
     };
     let update = pb::UpdateMapRequest {
         robot_id: robot.id,

@@ -107,7 +107,25 @@ pub enum PatchError {
         /// The offending value.
         value: f32,
     },
+    /// An occupancy byte that is neither a percentage nor unknown.
+    #[error("occupancy byte {index} of the patch is {value}; send 0 to 100 (percent), or 255 (-1) for unknown")]
+    PercentOutOfRange {
+        /// Row-major position inside the patch.
+        index: usize,
+        /// The offending byte.
+        value: u8,
+    },
 }
+
+/// The occupancy byte of a cell the robot does not know (ROS's -1).
+pub const UNKNOWN_PERCENT: u8 = 255;
+
+/// The log-odds of each occupancy percentage: those of the probability
+/// `percent / 100`, clamped as every patch is, so that a cell sent as a
+/// percentage fuses exactly as the same probability sent as a float.
+static LOG_ODDS_OF_PERCENT: std::sync::LazyLock<[f32; 101]> = std::sync::LazyLock::new(|| {
+    std::array::from_fn(|p| log_odds_from_probability(p as f32 / 100.0).clamp(LOG_ODDS_MIN, LOG_ODDS_MAX))
+});
 
 /// A validated rectangle of one robot's map, in log-odds.
 #[derive(Debug, Clone, PartialEq)]
@@ -131,6 +149,23 @@ impl Patch {
         })
     }
 
+    /// A patch of occupancy percentages, one byte per cell as ROS's
+    /// `nav_msgs/OccupancyGrid` holds them: 0 to 100, or [`UNKNOWN_PERCENT`].
+    /// A table lookup per cell, where probabilities take a logarithm.
+    pub fn from_occupancy_percent(rect: CellRect, occupancy: &[u8]) -> Result<Self, PatchError> {
+        Self::check_count(rect, occupancy.len())?;
+        let table = &*LOG_ODDS_OF_PERCENT;
+        let log_odds = occupancy
+            .iter()
+            .enumerate()
+            .map(|(index, &value)| match value {
+                UNKNOWN_PERCENT => Ok(f32::NAN),
+                _ => table.get(usize::from(value)).copied().ok_or(PatchError::PercentOutOfRange { index, value }),
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self { rect, log_odds })
+    }
+
     /// A patch of log-odds; `unknown` is empty or one flag per cell.
     pub fn from_log_odds(rect: CellRect, values: &[f32], unknown: &[bool]) -> Result<Self, PatchError> {
         Self::build(rect, values, unknown, |index, value| {
@@ -147,17 +182,7 @@ impl Patch {
         {
             return Err(PatchError::StoredOutOfRange { index, value });
         }
-        if rect.width == 0 || rect.height == 0 {
-            return Err(PatchError::Empty { width: rect.width, height: rect.height });
-        }
-        if log_odds.len() as u64 != rect.area() {
-            return Err(PatchError::ValueCount {
-                width: rect.width,
-                height: rect.height,
-                expected: rect.area(),
-                got: log_odds.len(),
-            });
-        }
+        Self::check_count(rect, log_odds.len())?;
         Ok(Self { rect, log_odds })
     }
 
@@ -167,13 +192,8 @@ impl Patch {
         unknown: &[bool],
         convert: impl Fn(usize, f32) -> Result<f32, PatchError>,
     ) -> Result<Self, PatchError> {
-        if rect.width == 0 || rect.height == 0 {
-            return Err(PatchError::Empty { width: rect.width, height: rect.height });
-        }
+        Self::check_count(rect, values.len())?;
         let expected = rect.area();
-        if values.len() as u64 != expected {
-            return Err(PatchError::ValueCount { width: rect.width, height: rect.height, expected, got: values.len() });
-        }
         if !unknown.is_empty() && unknown.len() as u64 != expected {
             return Err(PatchError::UnknownMaskLength { expected, got: unknown.len() });
         }
@@ -189,6 +209,18 @@ impl Patch {
             })
             .collect::<Result<Vec<_>, _>>()?;
         Ok(Self { rect, log_odds })
+    }
+
+    /// Checks that `rect` is not empty and that `got` values cover it.
+    fn check_count(rect: CellRect, got: usize) -> Result<(), PatchError> {
+        if rect.width == 0 || rect.height == 0 {
+            return Err(PatchError::Empty { width: rect.width, height: rect.height });
+        }
+        let expected = rect.area();
+        if got as u64 != expected {
+            return Err(PatchError::ValueCount { width: rect.width, height: rect.height, expected, got });
+        }
+        Ok(())
     }
 
     /// The rectangle of the mission grid this patch covers.
@@ -601,6 +633,42 @@ mod tests {
         assert_eq!(both.value(Cell::new(1, 0)), 95, "the more confident layer wins, no double count");
         assert_eq!(both.value(Cell::new(0, 0)), 30);
         assert_eq!(fusion.grid_of(&[]).known_cells(), 0);
+    }
+
+    /// Every percentage fuses bit for bit as the probability `p / 100`
+    /// sent as a float, and 255 as a cell under the unknown mask.
+    #[test]
+    fn occupancy_bytes_are_the_probabilities_they_name() {
+        let rect = CellRect::new(3, 4, 102, 1);
+        let bytes: Vec<u8> = (0..=100).chain([UNKNOWN_PERCENT]).collect();
+        let floats: Vec<f32> = (0..=100).map(|p| p as f32 / 100.0).chain([0.0]).collect();
+        let mut unknown = vec![false; 102];
+        unknown[101] = true;
+        let from_bytes = Patch::from_occupancy_percent(rect, &bytes).unwrap();
+        let from_floats = Patch::from_probabilities(rect, &floats, &unknown).unwrap();
+        assert_eq!(from_bytes.rect(), from_floats.rect());
+        for (i, (a, b)) in from_bytes.log_odds().iter().zip(from_floats.log_odds()).enumerate() {
+            assert_eq!(a.to_bits(), b.to_bits(), "byte {i}: {a} against {b}");
+        }
+        assert_eq!(from_bytes.known_cells(), 101);
+    }
+
+    #[test]
+    fn occupancy_bytes_that_are_no_percentage_are_refused() {
+        let rect = CellRect::new(0, 0, 2, 2);
+        assert_eq!(
+            Patch::from_occupancy_percent(rect, &[0, 100, 101, 255]),
+            Err(PatchError::PercentOutOfRange { index: 2, value: 101 })
+        );
+        assert_eq!(
+            Patch::from_occupancy_percent(rect, &[0, 254, 0, 0]),
+            Err(PatchError::PercentOutOfRange { index: 1, value: 254 })
+        );
+        assert!(matches!(
+            Patch::from_occupancy_percent(rect, &[0; 3]),
+            Err(PatchError::ValueCount { expected: 4, got: 3, .. })
+        ));
+        assert!(matches!(Patch::from_occupancy_percent(CellRect::new(0, 0, 2, 0), &[]), Err(PatchError::Empty { .. })));
     }
 
     #[test]

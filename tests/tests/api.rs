@@ -85,6 +85,15 @@ async fn bad_map_updates_get_precise_statuses_and_change_nothing() {
     no_encoding.encoding = 0;
     let mut short_mask = patch(0, 0, 2, 2, 0.1);
     short_mask.unknown = vec![1];
+    let occupancy = |bytes: Vec<u8>| pb::MapPatch {
+        width: 2,
+        height: 2,
+        encoding: pb::CellEncoding::OccupancyPercent as i32,
+        occupancy: bytes,
+        ..Default::default()
+    };
+    let mut both = occupancy(vec![0; 4]);
+    both.values = vec![0.1; 4];
     let cases: Vec<(&str, pb::UpdateMapRequest, Code, &str)> = vec![
         (
             "patch past the right edge",
@@ -118,7 +127,25 @@ async fn bad_map_updates_get_precise_statuses_and_change_nothing() {
             "no encoding",
             update(robot.id, 6, 1.0, 1.0, vec![no_encoding]),
             Code::InvalidArgument,
-            "PROBABILITY or LOG_ODDS",
+            "send PROBABILITY, LOG_ODDS or OCCUPANCY_PERCENT",
+        ),
+        (
+            "occupancy byte neither percent nor unknown",
+            update(robot.id, 6, 1.0, 1.0, vec![occupancy(vec![0, 100, 255, 200])]),
+            Code::InvalidArgument,
+            "occupancy byte 3 of the patch is 200",
+        ),
+        (
+            "occupancy bytes short",
+            update(robot.id, 6, 1.0, 1.0, vec![occupancy(vec![0, 100])]),
+            Code::InvalidArgument,
+            "carries 2 values",
+        ),
+        (
+            "occupancy bytes and float values",
+            update(robot.id, 6, 1.0, 1.0, vec![both]),
+            Code::InvalidArgument,
+            "leave `values` and `unknown` empty",
         ),
         (
             "unknown mask of the wrong length",

@@ -88,15 +88,20 @@ fn pose() -> impl Strategy<Value = Option<pb::Pose>> {
 }
 
 fn map_patch() -> impl Strategy<Value = pb::MapPatch> {
-    (wild_u32(), wild_u32(), 0..12u32, 0..12u32, -1..4i32, any::<bool>(), any::<bool>()).prop_flat_map(
-        |(x, y, width, height, encoding, extra_value, with_mask)| {
+    (wild_u32(), wild_u32(), 0..12u32, 0..12u32, -1..5i32, any::<bool>(), any::<bool>(), any::<bool>()).prop_flat_map(
+        |(x, y, width, height, encoding, extra_value, with_mask, with_occupancy)| {
             let n = (width * height) as usize + usize::from(extra_value);
             (
                 Just((x, y, width, height, encoding)),
                 proptest::collection::vec(wild_f32(), n),
                 proptest::collection::vec(0..3u8, if with_mask { n } else { 0 }),
+                // Mostly percentages and unknown, sometimes any byte.
+                proptest::collection::vec(
+                    prop_oneof![4 => 0..=100u8, 1 => Just(255u8), 1 => any::<u8>()],
+                    if with_occupancy { n } else { 0 },
+                ),
             )
-                .prop_map(|((x, y, width, height, encoding), values, unknown)| pb::MapPatch {
+                .prop_map(|((x, y, width, height, encoding), values, unknown, occupancy)| pb::MapPatch {
                     x,
                     y,
                     width,
@@ -104,6 +109,7 @@ fn map_patch() -> impl Strategy<Value = pb::MapPatch> {
                     encoding,
                     values,
                     unknown,
+                    occupancy,
                 })
         },
     )

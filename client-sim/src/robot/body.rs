@@ -191,6 +191,7 @@ impl SimRobot {
             encoding: pb::CellEncoding::Probability as i32,
             values,
             unknown: if any_unknown { unknown } else { Vec::new() },
+            occupancy: Vec::new(),
         })
     }
 }

@@ -73,6 +73,28 @@ def test_malformed_grids_are_refused_before_anything_is_sent() -> None:
         patch_from_grid(np.zeros((2, 2)), -1, 0)
     with pytest.raises(ValueError, match="encoding"):
         patch_from_grid(np.zeros((2, 2)), 0, 0, encoding="percent")
+    with pytest.raises(ValueError, match=r"cell \(1, 0\) holds 101"):
+        patch_from_grid(np.array([[0, 100], [101, -1]], dtype=np.int16), 0, 0, encoding="occupancy_percent")
+    with pytest.raises(ValueError, match="integer"):
+        patch_from_grid(np.array([[0.5]]), 0, 0, encoding="occupancy_percent")
+
+
+def test_a_ros_occupancy_grid_is_sent_as_it_is(open_coordinator: Coordinator) -> None:
+    with Executive(open_coordinator.address) as executive:
+        mission = executive.create_mission("ros grid", frame(20, 10), policy="nearest")
+        robot = executive.register_robot(mission.id, "r1", (0.25, 0.15, 0.0))
+        # nav_msgs/OccupancyGrid.data, int8, row 0 the bottom row; -1 unknown.
+        data = np.array([[0, 0, -1], [100, 5, 0]], dtype=np.int8)
+        patch = patch_from_grid(data, 2, 1, encoding="occupancy_percent")
+        assert patch.occupancy == bytes([0, 0, 255, 100, 5, 0]) and not patch.values
+        assert robot.update_map(data, (2, 1), (0.25, 0.15, 0.0), encoding="occupancy_percent").applied_seq == 1
+        snapshot = executive.missions.GetMap(pb.GetMapRequest(mission_id=mission.id))
+        cells = np.frombuffer(snapshot.cells, dtype=np.uint8).reshape(10, 20)
+        # Fused as the probabilities they name (and clamped as every patch is).
+        assert cells[1, 2] < 20 and cells[1, 3] < 20 and cells[1, 4] == 255, cells[1, :6]
+        assert cells[2, 2] > 80 and cells[2, 3] < 20 and cells[2, 4] < 20, cells[2, :6]
+        assert int((cells != 255).sum()) == 5
+        robot.close()
 
 
 def test_the_assignment_iterator_survives_an_executive_killed_and_restarted(coordinator: Coordinator) -> None:

@@ -458,19 +458,37 @@ impl TryFrom<pb::MapPatch> for PatchInput {
             return Err(invalid(format!("patch corner ({}, {}) lies outside any mission grid", p.x, p.y)));
         };
         let rect = CellRect::new(x, y, p.width, p.height);
-        let unknown: Vec<bool> = p.unknown.iter().map(|&b| b != 0).collect();
-        let patch = match pb::CellEncoding::try_from(p.encoding) {
-            Ok(pb::CellEncoding::Probability) => Patch::from_probabilities(rect, &p.values, &unknown)?,
-            Ok(pb::CellEncoding::LogOdds) => Patch::from_log_odds(rect, &p.values, &unknown)?,
+        let encoding = pb::CellEncoding::try_from(p.encoding);
+        let patch = match encoding {
+            Ok(pb::CellEncoding::OccupancyPercent) => {
+                if !p.values.is_empty() || !p.unknown.is_empty() {
+                    return Err(invalid(
+                        "an OCCUPANCY_PERCENT patch carries its cells in `occupancy`; leave `values` and `unknown` empty",
+                    ));
+                }
+                Patch::from_occupancy_percent(rect, &p.occupancy)?
+            }
+            Ok(pb::CellEncoding::Probability | pb::CellEncoding::LogOdds) if !p.occupancy.is_empty() => {
+                return Err(invalid(
+                    "`occupancy` is for OCCUPANCY_PERCENT patches; PROBABILITY and LOG_ODDS carry their cells in `values`",
+                ));
+            }
+            Ok(pb::CellEncoding::Probability) => Patch::from_probabilities(rect, &p.values, &unknown_mask(&p.unknown))?,
+            Ok(pb::CellEncoding::LogOdds) => Patch::from_log_odds(rect, &p.values, &unknown_mask(&p.unknown))?,
             Ok(pb::CellEncoding::Unspecified) | Err(_) => {
                 return Err(invalid(format!(
-                    "encoding {} is not a cell encoding; send PROBABILITY or LOG_ODDS",
+                    "encoding {} is not a cell encoding; send PROBABILITY, LOG_ODDS or OCCUPANCY_PERCENT",
                     p.encoding
                 )));
             }
         };
         Ok(Self(patch))
     }
+}
+
+/// The `unknown` bytes of a patch as flags: non-zero is unknown.
+fn unknown_mask(bytes: &[u8]) -> Vec<bool> {
+    bytes.iter().map(|&b| b != 0).collect()
 }
 
 /// A validated patch (a newtype so the conversion can live here).
@@ -715,6 +733,7 @@ mod tests {
             encoding: encoding as i32,
             values,
             unknown: vec![],
+            occupancy: vec![],
         };
         assert!(PatchInput::try_from(patch(pb::CellEncoding::Probability, vec![0.1, 0.9])).is_ok());
         let err = PatchInput::try_from(patch(pb::CellEncoding::Unspecified, vec![0.1, 0.9])).unwrap_err();
@@ -728,6 +747,32 @@ mod tests {
         let mut far = patch(pb::CellEncoding::LogOdds, vec![0.1, 0.2]);
         far.x = u32::MAX;
         assert!(PatchInput::try_from(far).is_err());
+    }
+
+    #[test]
+    fn occupancy_patches_carry_their_cells_in_occupancy_only() {
+        let patch = |occupancy: Vec<u8>| pb::MapPatch {
+            width: 2,
+            height: 1,
+            encoding: pb::CellEncoding::OccupancyPercent as i32,
+            occupancy,
+            ..Default::default()
+        };
+        let accepted = PatchInput::try_from(patch(vec![100, 255])).unwrap().0;
+        assert_eq!(accepted.known_cells(), 1);
+        let err = PatchInput::try_from(patch(vec![100, 128])).unwrap_err();
+        assert!(matches!(err, Error::InvalidArgument(_)) && err.to_string().contains("byte 1"), "{err}");
+        let err = PatchInput::try_from(patch(vec![100])).unwrap_err();
+        assert!(err.to_string().contains("carries 1 values"), "{err}");
+        let mut mixed = patch(vec![0, 0]);
+        mixed.values = vec![0.1, 0.2];
+        let err = PatchInput::try_from(mixed).unwrap_err();
+        assert!(err.to_string().contains("leave `values` and `unknown` empty"), "{err}");
+        let mut mixed = patch(vec![0, 0]);
+        mixed.encoding = pb::CellEncoding::Probability as i32;
+        mixed.values = vec![0.1, 0.2];
+        let err = PatchInput::try_from(mixed).unwrap_err();
+        assert!(err.to_string().contains("`occupancy` is for OCCUPANCY_PERCENT"), "{err}");
     }
 
     #[test]

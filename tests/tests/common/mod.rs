@@ -206,6 +206,7 @@ pub fn patch(x: u32, y: u32, width: u32, height: u32, p: f32) -> pb::MapPatch {
         encoding: pb::CellEncoding::Probability as i32,
         values: vec![p; (width * height) as usize],
         unknown: vec![],
+        occupancy: vec![],
     }
 }
 
