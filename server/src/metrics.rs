@@ -70,6 +70,14 @@ pub struct Metrics {
     pub store_commit: Histogram,
     /// Changesets committed per transaction.
     pub commit_group: Histogram,
+    /// Time a robot's request waited for its mission (behind the mission's
+    /// other requests and plans).
+    pub mission_wait: Histogram,
+    /// Time a changeset waited for room in the store's write queue, while
+    /// its mission is held.
+    pub store_queue_wait: Histogram,
+    /// Time from a changeset queued to its being durable.
+    pub store_durable_wait: Histogram,
     /// Map patches folded into map snapshots (see `store::compact`).
     pub patches_folded: Counter,
     /// Calls refused to shed load, by reason.
@@ -103,6 +111,9 @@ impl Metrics {
             planner_busy: Gauge::default(),
             store_commit: latency_histogram(),
             commit_group: Histogram::new(exponential_buckets(1.0, 2.0, 10)),
+            mission_wait: latency_histogram(),
+            store_queue_wait: latency_histogram(),
+            store_durable_wait: latency_histogram(),
             patches_folded: Counter::default(),
             shed: Family::default(),
             missions: Family::default(),
@@ -127,6 +138,21 @@ impl Metrics {
         );
         registry.register("store_commit_seconds", "Time to commit one transaction", metrics.store_commit.clone());
         registry.register("store_commit_group", "Changesets committed per transaction", metrics.commit_group.clone());
+        registry.register(
+            "mission_wait_seconds",
+            "Time a robot's request waited for its mission (its other requests and plans)",
+            metrics.mission_wait.clone(),
+        );
+        registry.register(
+            "store_queue_wait_seconds",
+            "Time a changeset waited for room in the store's write queue, its mission held",
+            metrics.store_queue_wait.clone(),
+        );
+        registry.register(
+            "store_durable_wait_seconds",
+            "Time from a changeset queued for writing to its being durable",
+            metrics.store_durable_wait.clone(),
+        );
         registry.register(
             "patches_folded",
             "Map patches folded into map snapshots and so out of the patch log",
@@ -244,6 +270,9 @@ mod tests {
             "coordinator_shed_total{name=\"mission queue full\"} 1",
             "coordinator_calls_total{method=\"exploration.v1.Fleet/UpdateMap\",code=\"Ok\"} 1",
             "# TYPE coordinator_store_commit_seconds histogram",
+            "# TYPE coordinator_mission_wait_seconds histogram",
+            "# TYPE coordinator_store_queue_wait_seconds histogram",
+            "# TYPE coordinator_store_durable_wait_seconds histogram",
         ] {
             assert!(text.contains(needle), "{needle} missing from\n{text}");
         }

@@ -74,6 +74,11 @@ async fn plans_arrive_on_the_streams_and_the_metrics_move() {
     let coverage = metric(&after, &format!("coordinator_coverage{{mission=\"{}\"}}", mission.id));
     assert!((coverage - 0.5).abs() < 1e-9, "{coverage}");
     assert!(metric(&after, "coordinator_store_commit_seconds_count") >= 1.0);
+    // Each map update waited for its mission, for room in the write queue,
+    // and for its write to be durable.
+    for waited in ["mission_wait", "store_queue_wait", "store_durable_wait"] {
+        assert!(metric(&after, &format!("coordinator_{waited}_seconds_count")) >= 3.0, "{waited}: {after}");
+    }
     exec.stop().await;
 }
 

@@ -239,7 +239,7 @@ impl Executive {
         let mut missions = BTreeMap::new();
         let mut robot_missions = HashMap::new();
         let mut total_cells = 0u64;
-        let writer = Writer::new(Arc::clone(&store), settings.clock.clone());
+        let writer = Writer::new(Arc::clone(&store), settings.clock.clone(), Arc::clone(&metrics));
         for record in store.missions().await? {
             let id = record.id;
             total_cells += record.spec.frame.len() as u64;
@@ -306,9 +306,12 @@ impl Executive {
 
     /// A mission for a robot's request, unless too many already wait for it.
     async fn lock_for_request<'a>(&self, cell: &'a MissionCell) -> Result<tokio::sync::MutexGuard<'a, Mission>, Error> {
-        cell.lock_for_request(self.settings.max_queued_per_mission).await.inspect_err(|_| {
+        let asked = std::time::Instant::now();
+        let locked = cell.lock_for_request(self.settings.max_queued_per_mission).await.inspect_err(|_| {
             self.metrics.shed("mission queue full");
-        })
+        });
+        self.metrics.mission_wait.observe(asked.elapsed().as_secs_f64());
+        locked
     }
 
     fn summary(mission: &Mission) -> MissionSummary {

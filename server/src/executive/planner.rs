@@ -358,7 +358,7 @@ mod tests {
         let store: Arc<dyn Store> = Arc::new(store);
         let metrics = Arc::new(Metrics::new());
         let ids = Arc::new(AtomicU64::new(0));
-        let writer = Writer::new(store, Clock::default());
+        let writer = Writer::new(store, Clock::default(), Arc::clone(&metrics));
         let planner = Planner::new(writer, Clock::default(), 1, 1, ids, Arc::clone(&metrics), Default::default());
         let cell = Arc::new(MissionCell::new(mission));
         // Another mission's plan holds the only turn.

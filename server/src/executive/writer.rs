@@ -18,10 +18,12 @@
 //! from the store: what was not acknowledged is gone, as after a restart.
 
 use std::sync::Arc;
+use std::time::Instant;
 
 use crate::clock::Clock;
 use crate::domain::MissionRecord;
 use crate::error::Error;
+use crate::metrics::Metrics;
 use crate::store::{Changeset, Store, StoreError, Submitted};
 
 use super::mission::{Mission, StoredMission};
@@ -32,6 +34,7 @@ use super::planner::MissionCell;
 pub(crate) struct Writer {
     store: Arc<dyn Store>,
     clock: Clock,
+    metrics: Arc<Metrics>,
 }
 
 /// A changeset queued behind its mission's earlier ones.
@@ -40,11 +43,13 @@ pub(crate) struct Queued {
     submitted: Submitted,
     /// The mission's generation when it was queued (see [`Mission::generation`]).
     generation: u64,
+    /// When it was queued.
+    at: Instant,
 }
 
 impl Writer {
-    pub(crate) fn new(store: Arc<dyn Store>, clock: Clock) -> Self {
-        Self { store, clock }
+    pub(crate) fn new(store: Arc<dyn Store>, clock: Clock, metrics: Arc<Metrics>) -> Self {
+        Self { store, clock, metrics }
     }
 
     /// Writes `changes` behind the mission's earlier changesets and returns
@@ -53,7 +58,9 @@ impl Writer {
     /// the mission may hold already) makes the mission reload.
     pub(crate) async fn write(&self, mission: &mut Mission, changes: Changeset) -> Result<Changeset, Error> {
         let queued = self.queue(mission, changes).await?;
-        match queued.submitted.durable().await {
+        let written = queued.submitted.durable().await;
+        self.metrics.store_durable_wait.observe(queued.at.elapsed().as_secs_f64());
+        match written {
             Ok(changes) => Ok(changes),
             Err(e @ StoreError::Abandoned { .. }) => Err(self.recover(mission, queued.generation, e).await),
             Err(e) => {
@@ -69,17 +76,22 @@ impl Writer {
     /// may apply them now, release the mission, and wait with [`Writer::durable`].
     pub(crate) async fn queue(&self, mission: &mut Mission, changes: Changeset) -> Result<Queued, Error> {
         let generation = mission.generation();
+        let asked = Instant::now();
         let submitted = self.store.submit(changes, mission.last_commit()).await?;
+        let at = Instant::now();
+        self.metrics.store_queue_wait.observe((at - asked).as_secs_f64());
         mission.set_last_commit(submitted.id);
-        Ok(Queued { submitted, generation })
+        Ok(Queued { submitted, generation, at })
     }
 
     /// Waits until a queued changeset is durable. If it is not, the mission
     /// (which holds it already) is reloaded from the store before this
     /// returns, so that nobody reads what was not written afterwards.
     pub(crate) async fn durable(&self, queued: Queued, cell: &MissionCell) -> Result<(), Error> {
-        let Queued { submitted, generation } = queued;
-        match submitted.durable().await {
+        let Queued { submitted, generation, at } = queued;
+        let written = submitted.durable().await;
+        self.metrics.store_durable_wait.observe(at.elapsed().as_secs_f64());
+        match written {
             Ok(_) => Ok(()),
             Err(e) => Err(self.recover(&mut *cell.lock().await, generation, e).await),
         }
