@@ -87,6 +87,8 @@ def test_a_ros_occupancy_grid_is_sent_as_it_is(open_coordinator: Coordinator) ->
         data = np.array([[0, 0, -1], [100, 5, 0]], dtype=np.int8)
         patch = patch_from_grid(data, 2, 1, encoding="occupancy_percent")
         assert patch.occupancy == bytes([0, 0, 255, 100, 5, 0]) and not patch.values
+        # The same bytes unsigned make the same patch.
+        assert patch_from_grid(data.view(np.uint8), 2, 1, encoding="occupancy_percent") == patch
         assert robot.update_map(data, (2, 1), (0.25, 0.15, 0.0), encoding="occupancy_percent").applied_seq == 1
         snapshot = executive.missions.GetMap(pb.GetMapRequest(mission_id=mission.id))
         cells = np.frombuffer(snapshot.cells, dtype=np.uint8).reshape(10, 20)

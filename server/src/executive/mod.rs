@@ -309,9 +309,9 @@ impl Executive {
         let asked = std::time::Instant::now();
         let locked = cell.lock_for_request(self.settings.max_queued_per_mission).await.inspect_err(|_| {
             self.metrics.shed("mission queue full");
-        });
+        })?;
         self.metrics.mission_wait.observe(asked.elapsed().as_secs_f64());
-        locked
+        Ok(locked)
     }
 
     fn summary(mission: &Mission) -> MissionSummary {

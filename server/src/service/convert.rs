@@ -458,8 +458,7 @@ impl TryFrom<pb::MapPatch> for PatchInput {
             return Err(invalid(format!("patch corner ({}, {}) lies outside any mission grid", p.x, p.y)));
         };
         let rect = CellRect::new(x, y, p.width, p.height);
-        let encoding = pb::CellEncoding::try_from(p.encoding);
-        let patch = match encoding {
+        let patch = match pb::CellEncoding::try_from(p.encoding) {
             Ok(pb::CellEncoding::OccupancyPercent) => {
                 if !p.values.is_empty() || !p.unknown.is_empty() {
                     return Err(invalid(

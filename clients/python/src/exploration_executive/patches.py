@@ -28,15 +28,16 @@ def patch_from_grid(
 
     ``grid[row, column]``, row 0 the bottom row, holds occupancy
     probabilities (0..1) or log-odds, or for ``occupancy_percent`` the
-    values of a ROS ``nav_msgs/OccupancyGrid``: 0..100 percent and -1 for
-    unknown, sent as one byte per cell. Cells are unknown where ``unknown``
-    is true, or, without a mask, where the grid holds NaN (or -1).
+    values of a ROS ``nav_msgs/OccupancyGrid``: 0..100 percent and -1 (or
+    255, the same byte unsigned) for unknown, sent as one byte per cell.
+    Cells are unknown where ``unknown`` is true, or, without a mask, where
+    the grid holds NaN (or -1).
     """
     if encoding not in ENCODINGS:
         raise ValueError(f"encoding {encoding!r}: expected one of {sorted(ENCODINGS)}")
     if encoding == "occupancy_percent":
         grid = np.asarray(grid)
-        default_mask = grid == -1
+        default_mask = (grid == -1) | (grid == UNKNOWN_PERCENT)
     else:
         grid = np.asarray(grid, dtype=np.float32)
         default_mask = np.isnan(grid)
