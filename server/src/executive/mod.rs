@@ -32,7 +32,7 @@ mod writer;
 
 use mission::Mission;
 use planner::{MissionCell, Planner};
-use writer::Writer;
+use writer::{Queued, Writer};
 
 use crate::metrics::Metrics;
 
@@ -437,19 +437,44 @@ impl Executive {
         let mut mission = self.lock_for_request(&handle).await?;
         let peers = heartbeat.peers.clone();
         let changes = mission.prepare_heartbeat(robot_id, heartbeat, Timestamp::now())?;
-        if mission.only_liveness(&changes) {
+        // A task's new state is applied once queued and answered once
+        // durable, as map updates are: written under the mission's lock,
+        // the transitions every new target sets off kept the mission's other
+        // requests waiting for the disk (docs/benchmarks.md).
+        let queued = if mission.only_liveness(&changes) {
             // Where the robot is and that it lives: written behind, with the
             // next sweep (see `Mission::apply_unsaved`).
             mission.apply_unsaved(changes);
+            None
         } else {
-            self.commit(&mut mission, changes).await?;
-        }
+            let queued = self.writer.queue(&mut mission, changes.clone()).await?;
+            Some((queued, mission.apply_queued(changes)))
+        };
         mission.heard_from(robot_id, self.settings.clock.now());
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
         }
         self.planner.after_change(&handle, &mut mission).await;
-        mission.assignment(robot_id)
+        let Some((queued, moved)) = queued else { return mission.assignment_told(robot_id) };
+        let assignment = mission.assignment(robot_id);
+        drop(mission);
+        self.durable_then_tell(queued, moved, &handle).await?;
+        assignment
+    }
+
+    /// Waits until a changeset applied with [`Mission::apply_queued`] is
+    /// durable, then tells the robots the assignments it moved.
+    async fn durable_then_tell(
+        &self,
+        queued: Queued,
+        moved: Vec<Assignment>,
+        handle: &MissionCell,
+    ) -> Result<(), Error> {
+        self.writer.durable(queued, handle).await?;
+        if !moved.is_empty() {
+            handle.lock().await.tell(moved);
+        }
+        Ok(())
     }
 
     /// Applies a robot's map update exactly once, then replans if due.
@@ -461,7 +486,7 @@ impl Executive {
         let changes = mission.prepare_update(robot_id, update, Timestamp::now())?;
         // Applied once queued, acknowledged once durable (see `writer`).
         let queued = self.writer.queue(&mut mission, changes.clone()).await?;
-        mission.apply(changes);
+        let moved = mission.apply_queued(changes);
         mission.heard_from(robot_id, self.settings.clock.now());
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
@@ -470,7 +495,7 @@ impl Executive {
         let assignment = mission.assignment(robot_id);
         let (frontier_cells, mission_state) = (mission.frontier_cells() as u64, mission.record().state);
         drop(mission);
-        self.writer.durable(queued, &handle).await?;
+        self.durable_then_tell(queued, moved, &handle).await?;
         Ok(MapUpdateOutcome { applied_seq: seq, assignment: assignment?, frontier_cells, mission_state })
     }
 
@@ -528,7 +553,7 @@ impl Executive {
     pub async fn assignment(&self, robot_id: RobotId) -> Result<Assignment, Error> {
         let handle = self.mission_of_robot(robot_id)?;
         let mission = handle.lock().await;
-        mission.assignment(robot_id)
+        mission.assignment_told(robot_id)
     }
 
     /// A receiver of a robot's assignments: holds the current one, then sees every change.

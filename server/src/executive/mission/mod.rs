@@ -340,9 +340,23 @@ impl Mission {
         !robot.lost && !robot.current_task.and_then(|t| self.open_tasks.get(&t)).is_some_and(TaskRecord::is_override)
     }
 
-    /// The robot's assignment as it stands.
+    /// The robot's assignment as it stands. For an answer given only once
+    /// the caller's own changeset is durable (changesets become durable in
+    /// order, so everything applied before it is durable too); otherwise
+    /// see [`Mission::assignment_told`].
     pub(crate) fn assignment(&self, id: RobotId) -> Result<Assignment, Error> {
         Ok(self.assignment_for(self.robot(id)?))
+    }
+
+    /// The robot's assignment as far as it may be told now: the one last
+    /// pushed to its stream while a changeset that changed it is not yet
+    /// durable (see [`Mission::apply_queued`]), else as it stands.
+    pub(crate) fn assignment_told(&self, id: RobotId) -> Result<Assignment, Error> {
+        let robot = self.robot(id)?;
+        match self.robots.get(&id) {
+            Some(slot) if slot.watch.borrow().version != robot.assignment_version => Ok(slot.watch.borrow().clone()),
+            _ => Ok(self.assignment_for(robot)),
+        }
     }
 
     fn assignment_for(&self, robot: &RobotRecord) -> Assignment {
@@ -621,7 +635,9 @@ impl Mission {
     /// Applies a liveness report without writing it (see [`Mission::only_liveness`]).
     pub(crate) fn apply_unsaved(&mut self, changes: Changeset) {
         self.unsaved.extend(changes.robots.iter().map(|r| r.id));
-        self.apply(changes);
+        // Liveness moves no assignment; and assignments a changeset still
+        // on its way to the disk moved are not to be told yet.
+        self.apply_changes(changes);
     }
 
     /// The records of the robots changed only by liveness reports, to write.
@@ -639,8 +655,41 @@ impl Mission {
         self.unsaved.extend(self.unsaved_in_flight.drain(..));
     }
 
-    /// Makes a committed changeset the live state.
+    /// Makes a durable changeset the live state, and tells the robots
+    /// every assignment that moved: every changeset queued before it is
+    /// durable too.
     pub(crate) fn apply(&mut self, changes: Changeset) {
+        self.apply_changes(changes);
+        self.tell_moved();
+    }
+
+    /// Makes a changeset queued but not yet durable the live state, so that
+    /// the mission need not be held while the disk works, and returns the
+    /// assignments that moved, to [`Mission::tell`] once it is durable:
+    /// before that no robot is told them (changesets become durable in
+    /// order, so those of earlier changesets may be told with it).
+    pub(crate) fn apply_queued(&mut self, changes: Changeset) -> Vec<Assignment> {
+        self.apply_changes(changes);
+        self.robots
+            .values()
+            .filter(|s| s.watch.borrow().version != s.record.assignment_version)
+            .map(|s| self.assignment_for(&s.record))
+            .collect()
+    }
+
+    /// Tells the robots assignments of a changeset now durable, unless a
+    /// newer one was told already.
+    pub(crate) fn tell(&self, assignments: Vec<Assignment>) {
+        for assignment in assignments {
+            if let Some(slot) = self.robots.get(&assignment.robot_id)
+                && slot.watch.borrow().version < assignment.version
+            {
+                slot.watch.send_replace(assignment);
+            }
+        }
+    }
+
+    fn apply_changes(&mut self, changes: Changeset) {
         for logged in &changes.patches {
             match self.fusion.apply(logged.robot_id, &logged.patch) {
                 Ok(change) => {
@@ -734,15 +783,18 @@ impl Mission {
             self.demand_replan("given segmentation changed".to_owned());
         }
         self.changed.send_modify(|v| *v += 1);
-        // Push every assignment whose version moved (after all records are in place).
-        let updates: Vec<(RobotId, Assignment)> = self
+    }
+
+    /// Pushes every assignment whose version moved to its robot's stream.
+    fn tell_moved(&self) {
+        let moved: Vec<Assignment> = self
             .robots
             .values()
             .filter(|s| s.watch.borrow().version != s.record.assignment_version)
-            .map(|s| (s.record.id, self.assignment_for(&s.record)))
+            .map(|s| self.assignment_for(&s.record))
             .collect();
-        for (id, assignment) in updates {
-            if let Some(slot) = self.robots.get(&id) {
+        for assignment in moved {
+            if let Some(slot) = self.robots.get(&assignment.robot_id) {
                 slot.watch.send_replace(assignment);
             }
         }

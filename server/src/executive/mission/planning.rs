@@ -615,7 +615,9 @@ mod tests {
     use exploration::policy::{Capabilities, PolicyConfig};
 
     use super::*;
-    use crate::domain::{LifecycleSettings, MissionRecord, MissionSpec, Pose, ReplanSettings, RobotRecord, RobotState};
+    use crate::domain::{
+        Heartbeat, LifecycleSettings, MissionRecord, MissionSpec, Pose, ReplanSettings, RobotRecord, RobotState,
+    };
     use crate::store::{Changeset, LoggedPatch};
 
     /// A 4 m × 2 m mission of 0.1 m cells under `nearest`, with two robots,
@@ -785,5 +787,52 @@ mod tests {
         assert_eq!(task.robot_id, 2);
         let frame = mission.record().spec.frame;
         assert_eq!(frame.cell_from_world(&task.target), Some(planned_for_2), "robot 2's own target");
+    }
+    /// A heartbeat that ends a task is applied once queued for the disk, so
+    /// that its mission need not wait for the write; its robot is told the
+    /// assignment it moved only once it is durable ([`Mission::tell`]), not
+    /// by another robot's report applied meanwhile, and never told an older
+    /// one after a newer.
+    #[test]
+    fn an_assignment_moved_by_a_queued_changeset_is_told_once_it_is_durable() {
+        let mut mission = mission();
+        let ids = AtomicU64::new(10);
+        plan(&mut mission, &ids);
+        let mut told = mission.watch(1).unwrap();
+        let task = told.borrow_and_update().task.as_ref().map(|t| t.id).expect("robot 1 was told its task");
+        let at = |x, y| Pose { position: Point2::new(x, y), heading: 0.0 };
+        let arrived = Heartbeat {
+            pose: at(0.5, 0.15),
+            state: RobotState::Arrived,
+            task_id: Some(task),
+            reason: String::new(),
+            peers: None,
+        };
+        let changes = mission.prepare_heartbeat(1, arrived, Timestamp(2)).unwrap();
+        assert!(!mission.only_liveness(&changes));
+        let moved = mission.apply_queued(changes);
+        assert_eq!(mission.robot(1).unwrap().current_task, None, "applied at once");
+        assert_eq!(mission.assignment(1).unwrap().task, None, "as it stands: for answers given once durable");
+        assert_eq!(mission.assignment_told(1).unwrap().task.map(|t| t.id), Some(task), "what may be told now");
+        // Robot 2 reports meanwhile; that tells robot 1 nothing.
+        let alive = Heartbeat {
+            pose: at(1.5, 1.85),
+            state: RobotState::Moving,
+            task_id: None,
+            reason: String::new(),
+            peers: None,
+        };
+        let changes = mission.prepare_heartbeat(2, alive, Timestamp(3)).unwrap();
+        assert!(mission.only_liveness(&changes));
+        mission.apply_unsaved(changes);
+        assert!(!told.has_changed().unwrap(), "told before it is durable");
+        let stale = mission.assignment_told(1).unwrap();
+        mission.tell(moved);
+        assert!(told.has_changed().unwrap());
+        let now_told = told.borrow_and_update().clone();
+        assert_eq!(now_told.task, None);
+        assert!(now_told.version > stale.version);
+        mission.tell(vec![stale]);
+        assert!(!told.has_changed().unwrap(), "an older assignment after a newer");
     }
 }
