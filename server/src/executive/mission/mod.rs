@@ -670,6 +670,11 @@ impl Mission {
     /// order, so those of earlier changesets may be told with it).
     pub(crate) fn apply_queued(&mut self, changes: Changeset) -> Vec<Assignment> {
         self.apply_changes(changes);
+        self.moved_assignments()
+    }
+
+    /// The assignments whose version moved since they were last told.
+    fn moved_assignments(&self) -> Vec<Assignment> {
         self.robots
             .values()
             .filter(|s| s.watch.borrow().version != s.record.assignment_version)
@@ -787,13 +792,7 @@ impl Mission {
 
     /// Pushes every assignment whose version moved to its robot's stream.
     fn tell_moved(&self) {
-        let moved: Vec<Assignment> = self
-            .robots
-            .values()
-            .filter(|s| s.watch.borrow().version != s.record.assignment_version)
-            .map(|s| self.assignment_for(&s.record))
-            .collect();
-        for assignment in moved {
+        for assignment in self.moved_assignments() {
             if let Some(slot) = self.robots.get(&assignment.robot_id) {
                 slot.watch.send_replace(assignment);
             }
