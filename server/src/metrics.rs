@@ -78,6 +78,9 @@ pub struct Metrics {
     pub store_queue_wait: Histogram,
     /// Time from a changeset queued to its being durable.
     pub store_durable_wait: Histogram,
+    /// Time a changeset waited in the store's write queue for its group's
+    /// transaction to begin.
+    pub store_queued: Histogram,
     /// Map patches folded into map snapshots (see `store::compact`).
     pub patches_folded: Counter,
     /// Calls refused to shed load, by reason.
@@ -114,6 +117,7 @@ impl Metrics {
             mission_wait: latency_histogram(),
             store_queue_wait: latency_histogram(),
             store_durable_wait: latency_histogram(),
+            store_queued: latency_histogram(),
             patches_folded: Counter::default(),
             shed: Family::default(),
             missions: Family::default(),
@@ -152,6 +156,11 @@ impl Metrics {
             "store_durable_wait_seconds",
             "Time from a changeset queued for writing to its being durable",
             metrics.store_durable_wait.clone(),
+        );
+        registry.register(
+            "store_queued_seconds",
+            "Time a changeset waited in the write queue for its group's transaction to begin",
+            metrics.store_queued.clone(),
         );
         registry.register(
             "patches_folded",
@@ -273,6 +282,7 @@ mod tests {
             "# TYPE coordinator_mission_wait_seconds histogram",
             "# TYPE coordinator_store_queue_wait_seconds histogram",
             "# TYPE coordinator_store_durable_wait_seconds histogram",
+            "# TYPE coordinator_store_queued_seconds histogram",
         ] {
             assert!(text.contains(needle), "{needle} missing from\n{text}");
         }

@@ -76,7 +76,7 @@ async fn plans_arrive_on_the_streams_and_the_metrics_move() {
     assert!(metric(&after, "coordinator_store_commit_seconds_count") >= 1.0);
     // Each map update waited for its mission, for room in the write queue,
     // and for its write to be durable.
-    for waited in ["mission_wait", "store_queue_wait", "store_durable_wait"] {
+    for waited in ["mission_wait", "store_queue_wait", "store_durable_wait", "store_queued"] {
         assert!(metric(&after, &format!("coordinator_{waited}_seconds_count")) >= 3.0, "{waited}: {after}");
     }
     exec.stop().await;

@@ -33,6 +33,8 @@ pub(super) struct Pending {
     pub(super) after: Option<CommitId>,
     pub(super) changes: Changeset,
     pub(super) reply: oneshot::Sender<Result<Changeset, StoreError>>,
+    /// When it was queued.
+    pub(super) queued_at: Instant,
 }
 
 /// The queue the committer drains; closing it (dropping every sender) ends
@@ -50,6 +52,11 @@ async fn run(pool: SqlitePool, mut queue: mpsc::Receiver<Pending>, metrics: Opti
     let mut broken = Broken::default();
     while queue.recv_many(&mut received, MAX_GROUP).await > 0 {
         let started = Instant::now();
+        if let Some(metrics) = &metrics {
+            for pending in &received {
+                metrics.store_queued.observe((started - pending.queued_at).as_secs_f64());
+            }
+        }
         let group: Vec<Pending> = received.drain(..).filter_map(|p| broken.unless_abandoned(p)).collect();
         let size = group.len();
         if size == 0 {

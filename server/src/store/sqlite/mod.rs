@@ -462,7 +462,8 @@ impl Store for SqliteStore {
         let queue = queue.ok_or_else(closed)?;
         let id = self.next_commit.fetch_add(1, Ordering::Relaxed);
         let (reply, answer) = tokio::sync::oneshot::channel();
-        queue.send(group::Pending { id, after, changes, reply }).await.map_err(|_| closed())?;
+        let queued_at = std::time::Instant::now();
+        queue.send(group::Pending { id, after, changes, reply, queued_at }).await.map_err(|_| closed())?;
         Ok(Submitted::queued(id, answer))
     }
 
