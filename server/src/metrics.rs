@@ -142,26 +142,31 @@ impl Metrics {
         );
         registry.register("store_commit_seconds", "Time to commit one transaction", metrics.store_commit.clone());
         registry.register("store_commit_group", "Changesets committed per transaction", metrics.commit_group.clone());
-        registry.register(
-            "mission_wait_seconds",
-            "Time a robot's request waited for its mission (its other requests and plans)",
-            metrics.mission_wait.clone(),
-        );
-        registry.register(
-            "store_queue_wait_seconds",
-            "Time a changeset waited for room in the store's write queue, its mission held",
-            metrics.store_queue_wait.clone(),
-        );
-        registry.register(
-            "store_durable_wait_seconds",
-            "Time from a changeset queued for writing to its being durable",
-            metrics.store_durable_wait.clone(),
-        );
-        registry.register(
-            "store_queued_seconds",
-            "Time a changeset waited in the write queue for its group's transaction to begin",
-            metrics.store_queued.clone(),
-        );
+        // Where a robot's request waits.
+        for (name, help, waited) in [
+            (
+                "mission_wait_seconds",
+                "Time a robot's request waited for its mission (its other requests and plans)",
+                &metrics.mission_wait,
+            ),
+            (
+                "store_queue_wait_seconds",
+                "Time a changeset waited for room in the store's write queue, its mission held",
+                &metrics.store_queue_wait,
+            ),
+            (
+                "store_durable_wait_seconds",
+                "Time from a changeset queued for writing to its being durable",
+                &metrics.store_durable_wait,
+            ),
+            (
+                "store_queued_seconds",
+                "Time a changeset waited in the write queue for its group's transaction to begin",
+                &metrics.store_queued,
+            ),
+        ] {
+            registry.register(name, help, waited.clone());
+        }
         registry.register(
             "patches_folded",
             "Map patches folded into map snapshots and so out of the patch log",
