@@ -32,7 +32,7 @@ mod writer;
 
 use mission::Mission;
 use planner::{MissionCell, Planner};
-use writer::{Queued, Writer};
+use writer::Writer;
 
 use crate::metrics::Metrics;
 
@@ -447,34 +447,18 @@ impl Executive {
             mission.apply_unsaved(changes);
             None
         } else {
-            let queued = self.writer.queue(&mut mission, changes.clone()).await?;
-            Some((queued, mission.apply_queued(changes)))
+            Some(self.writer.queue_and_apply(&mut mission, changes).await?)
         };
         mission.heard_from(robot_id, self.settings.clock.now());
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
         }
         self.planner.after_change(&handle, &mut mission).await;
-        let Some((queued, moved)) = queued else { return mission.assignment_told(robot_id) };
+        let Some(queued) = queued else { return mission.assignment_told(robot_id) };
         let assignment = mission.assignment(robot_id);
         drop(mission);
-        self.durable_then_tell(queued, moved, &handle).await?;
+        self.writer.durable(queued, &handle).await?;
         assignment
-    }
-
-    /// Waits until a changeset applied with [`Mission::apply_queued`] is
-    /// durable, then tells the robots the assignments it moved.
-    async fn durable_then_tell(
-        &self,
-        queued: Queued,
-        moved: Vec<Assignment>,
-        handle: &MissionCell,
-    ) -> Result<(), Error> {
-        self.writer.durable(queued, handle).await?;
-        if !moved.is_empty() {
-            handle.lock().await.tell(moved);
-        }
-        Ok(())
     }
 
     /// Applies a robot's map update exactly once, then replans if due.
@@ -485,8 +469,7 @@ impl Executive {
         let peers = update.peers.clone();
         let changes = mission.prepare_update(robot_id, update, Timestamp::now())?;
         // Applied once queued, acknowledged once durable (see `writer`).
-        let queued = self.writer.queue(&mut mission, changes.clone()).await?;
-        let moved = mission.apply_queued(changes);
+        let queued = self.writer.queue_and_apply(&mut mission, changes).await?;
         mission.heard_from(robot_id, self.settings.clock.now());
         if let Some(peers) = peers {
             mission.set_peers(robot_id, peers);
@@ -495,7 +478,7 @@ impl Executive {
         let assignment = mission.assignment(robot_id);
         let (frontier_cells, mission_state) = (mission.frontier_cells() as u64, mission.record().state);
         drop(mission);
-        self.durable_then_tell(queued, moved, &handle).await?;
+        self.writer.durable(queued, &handle).await?;
         Ok(MapUpdateOutcome { applied_seq: seq, assignment: assignment?, frontier_cells, mission_state })
     }
 

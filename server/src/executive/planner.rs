@@ -306,19 +306,18 @@ mod tests {
     use std::sync::Arc;
     use std::sync::atomic::AtomicU64;
 
-    use exploration::fusion::Patch;
-    use exploration::grid::{CellRect, GridFrame};
     use exploration::math::Point2;
-    use exploration::policy::{Capabilities, PolicyConfig};
+    use exploration::policy::Capabilities;
 
     use super::{MissionCell, Planner, background_budget};
     use crate::ExecutiveSettings;
     use crate::clock::Clock;
-    use crate::domain::{LifecycleSettings, MissionSpec, Pose, ReplanSettings, RobotSpec, Timestamp};
+    use crate::domain::{Pose, RobotSpec, Timestamp};
     use crate::executive::mission::Mission;
+    use crate::executive::mission::testing::{left_half_known, nearest_spec};
     use crate::executive::writer::Writer;
     use crate::metrics::Metrics;
-    use crate::store::{Changeset, LoggedPatch, SqliteStore, Store};
+    use crate::store::{SqliteStore, Store};
 
     /// A plan waits its turn before it takes its snapshot, so that what
     /// arrives during the wait (here a robot joining) is in the plan. Taken
@@ -328,16 +327,7 @@ mod tests {
     async fn a_plan_takes_its_snapshot_after_waiting_its_turn() {
         let dir = tempfile::tempdir().unwrap();
         let store = SqliteStore::open(&dir.path().join("p.db"), crate::Durability::Full).await.unwrap();
-        let spec = MissionSpec {
-            name: "turns".into(),
-            frame: GridFrame::new(0.1, Point2::origin(), 40, 20),
-            policy: PolicyConfig::default_for("nearest").unwrap(),
-            replan: ReplanSettings::default(),
-            scoped_by_communication: false,
-            lockstep: false,
-            lifecycle: LifecycleSettings::default(),
-        };
-        let record = store.create_mission(&spec, Timestamp(1)).await.unwrap();
+        let record = store.create_mission(&nearest_spec("turns"), Timestamp(1)).await.unwrap();
         let mut robots = Vec::new();
         for (name, x) in [("a", 0.5), ("b", 1.0), ("c", 1.5)] {
             let capabilities =
@@ -351,9 +341,7 @@ mod tests {
         for robot in &robots[..2] {
             mission.insert_robot(robot.clone(), now);
         }
-        let known = Patch::from_probabilities(CellRect::new(0, 0, 20, 20), &[0.1; 400], &[]).unwrap();
-        let patches = vec![LoggedPatch { robot_id: robots[0].id, seq: 1, patch: known }];
-        mission.apply(Changeset { patches, ..Changeset::default() });
+        mission.apply(left_half_known(robots[0].id));
 
         let store: Arc<dyn Store> = Arc::new(store);
         let metrics = Arc::new(Metrics::new());

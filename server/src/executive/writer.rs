@@ -24,7 +24,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use crate::clock::Clock;
-use crate::domain::MissionRecord;
+use crate::domain::{Assignment, MissionRecord};
 use crate::error::Error;
 use crate::metrics::Metrics;
 use crate::store::{Changeset, Store, StoreError, Submitted};
@@ -48,6 +48,8 @@ pub(crate) struct Queued {
     generation: u64,
     /// When it was queued.
     at: Instant,
+    /// The assignments it moved, told once it is durable.
+    moved: Vec<Assignment>,
 }
 
 impl Writer {
@@ -75,27 +77,40 @@ impl Writer {
         }
     }
 
-    /// Queues `changes` behind the mission's earlier changesets; the caller
-    /// may apply them now, release the mission, and wait with [`Writer::durable`].
-    pub(crate) async fn queue(&self, mission: &mut Mission, changes: Changeset) -> Result<Queued, Error> {
+    /// Queues `changes` behind the mission's earlier changesets and applies
+    /// them at once ([`Mission::apply_queued`]); the caller may release the
+    /// mission and wait with [`Writer::durable`], which tells the robots the
+    /// assignments they moved.
+    pub(crate) async fn queue_and_apply(&self, mission: &mut Mission, changes: Changeset) -> Result<Queued, Error> {
+        let mut queued = self.queue(mission, changes.clone()).await?;
+        queued.moved = mission.apply_queued(changes);
+        Ok(queued)
+    }
+
+    async fn queue(&self, mission: &mut Mission, changes: Changeset) -> Result<Queued, Error> {
         let generation = mission.generation();
         let asked = Instant::now();
         let submitted = self.store.submit(changes, mission.last_commit()).await?;
         let at = Instant::now();
         self.metrics.store_queue_wait.observe((at - asked).as_secs_f64());
         mission.set_last_commit(submitted.id);
-        Ok(Queued { submitted, generation, at })
+        Ok(Queued { submitted, generation, at, moved: Vec::new() })
     }
 
-    /// Waits until a queued changeset is durable. If it is not, the mission
-    /// (which holds it already) is reloaded from the store before this
-    /// returns, so that nobody reads what was not written afterwards.
+    /// Waits until a queued changeset is durable, then tells the robots the
+    /// assignments it moved. If it is not durable, the mission (which holds
+    /// it already) is reloaded from the store before this returns, so that
+    /// nobody reads what was not written afterwards.
     pub(crate) async fn durable(&self, queued: Queued, cell: &MissionCell) -> Result<(), Error> {
-        let Queued { submitted, generation, at } = queued;
+        let Queued { submitted, generation, at, moved } = queued;
         let written = submitted.durable().await;
         self.metrics.store_durable_wait.observe(at.elapsed().as_secs_f64());
         match written {
-            Ok(_) => Ok(()),
+            Ok(_) if moved.is_empty() => Ok(()),
+            Ok(_) => {
+                cell.lock().await.tell(moved);
+                Ok(())
+            }
             Err(e) => Err(self.recover(&mut *cell.lock().await, generation, e).await),
         }
     }

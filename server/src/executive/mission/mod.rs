@@ -18,6 +18,8 @@ mod lifecycle;
 mod map_log;
 mod operator;
 mod planning;
+#[cfg(test)]
+pub(crate) mod testing;
 
 pub(crate) use planning::{JobOutcome, PlanBasis};
 

@@ -610,14 +610,13 @@ mod tests {
     use std::sync::atomic::AtomicU64;
 
     use exploration::fusion::Patch;
-    use exploration::grid::{CellRect, GridFrame};
+    use exploration::grid::CellRect;
     use exploration::math::Point2;
     use exploration::policy::{Capabilities, PolicyConfig};
 
+    use super::super::testing::{left_half_known, nearest_spec};
     use super::*;
-    use crate::domain::{
-        Heartbeat, LifecycleSettings, MissionRecord, MissionSpec, Pose, ReplanSettings, RobotRecord, RobotState,
-    };
+    use crate::domain::{Heartbeat, MissionRecord, Pose, RobotRecord, RobotState};
     use crate::store::{Changeset, LoggedPatch};
 
     /// A 4 m × 2 m mission of 0.1 m cells under `nearest`, with two robots,
@@ -625,15 +624,7 @@ mod tests {
     fn mission() -> Mission {
         let record = MissionRecord {
             id: 1,
-            spec: MissionSpec {
-                name: "unit".into(),
-                frame: GridFrame::new(0.1, Point2::origin(), 40, 20),
-                policy: PolicyConfig::default_for("nearest").unwrap(),
-                replan: ReplanSettings::default(),
-                scoped_by_communication: false,
-                lockstep: false,
-                lifecycle: LifecycleSettings::default(),
-            },
+            spec: nearest_spec("unit"),
             state: MissionState::Active,
             replans: 0,
             map_updates: 0,
@@ -647,11 +638,7 @@ mod tests {
         for (id, x, y) in [(1, 0.5, 0.15), (2, 1.5, 1.85)] {
             mission.insert_robot(robot(id, x, y), now);
         }
-        let known = Patch::from_probabilities(CellRect::new(0, 0, 20, 20), &[0.1; 400], &[]).unwrap();
-        mission.apply(Changeset {
-            patches: vec![LoggedPatch { robot_id: 1, seq: 1, patch: known }],
-            ..Changeset::default()
-        });
+        mission.apply(left_half_known(1));
         mission
     }
 
