@@ -19,6 +19,7 @@ use sqlx::sqlite::SqlitePool;
 use sqlx::{Connection, SqliteConnection};
 use tokio::sync::{mpsc, oneshot};
 
+use super::checkpoint::WriterTurn;
 use super::write;
 use crate::metrics::Metrics;
 use crate::store::{Changeset, CommitId, FailureKind, StoreError};
@@ -39,15 +40,22 @@ pub(super) struct Pending {
 
 /// The queue the committer drains; closing it (dropping every sender) ends
 /// the committer once the queue is empty.
+/// Each group is written holding `turn` (see [`super::checkpoint`]).
 pub(super) fn start(
     pool: SqlitePool,
+    turn: WriterTurn,
     metrics: Option<std::sync::Arc<Metrics>>,
 ) -> (mpsc::Sender<Pending>, tokio::task::JoinHandle<()>) {
     let (sender, receiver) = mpsc::channel(4 * MAX_GROUP);
-    (sender, tokio::spawn(run(pool, receiver, metrics)))
+    (sender, tokio::spawn(run(pool, turn, receiver, metrics)))
 }
 
-async fn run(pool: SqlitePool, mut queue: mpsc::Receiver<Pending>, metrics: Option<std::sync::Arc<Metrics>>) {
+async fn run(
+    pool: SqlitePool,
+    turn: WriterTurn,
+    mut queue: mpsc::Receiver<Pending>,
+    metrics: Option<std::sync::Arc<Metrics>>,
+) {
     let mut received = Vec::with_capacity(MAX_GROUP);
     let mut broken = Broken::default();
     while queue.recv_many(&mut received, MAX_GROUP).await > 0 {
@@ -63,6 +71,7 @@ async fn run(pool: SqlitePool, mut queue: mpsc::Receiver<Pending>, metrics: Opti
             continue;
         }
         let changesets: Vec<Changeset> = group.iter().map(|p| p.changes.clone()).collect();
+        let _writer = turn.lock().await;
         match write_group(&pool, &changesets).await {
             Ok(()) => {
                 for pending in group {

@@ -48,6 +48,9 @@ pub struct SqliteStore {
     /// The group committer's queue (see [`group`]); taken at close.
     commits: Arc<std::sync::Mutex<Option<tokio::sync::mpsc::Sender<group::Pending>>>>,
     committer: Arc<std::sync::Mutex<Option<tokio::task::JoinHandle<()>>>>,
+    /// Held by every writer (the committer for each group) and by the
+    /// checkpointer to rewind the log.
+    turn: checkpoint::WriterTurn,
     /// The checkpointer (see [`checkpoint`]) and how to stop it; taken at close.
     checkpointer: Arc<std::sync::Mutex<Option<checkpoint::Checkpointer>>>,
     /// The name of the next changeset submitted.
@@ -82,16 +85,19 @@ impl SqliteStore {
             .foreign_keys(true)
             // Checkpoints run beside the writes, not inside them (see `checkpoint`).
             .pragma("wal_autocheckpoint", "0")
+            .pragma("journal_size_limit", checkpoint::LOG_LIMIT_BYTES.to_string())
             .busy_timeout(Duration::from_secs(5));
         let pool = SqlitePoolOptions::new().max_connections(4).connect_with(options).await?;
         MIGRATOR.run(&pool).await?;
-        let (commits, committer) = group::start(pool.clone(), metrics);
-        let checkpointer = checkpoint::Checkpointer::start(pool.clone());
+        let turn = checkpoint::WriterTurn::default();
+        let (commits, committer) = group::start(pool.clone(), turn.clone(), metrics);
+        let checkpointer = checkpoint::Checkpointer::start(pool.clone(), turn.clone());
         Ok(Self {
             pool,
             path: path.to_owned(),
             commits: Arc::new(std::sync::Mutex::new(Some(commits))),
             committer: Arc::new(std::sync::Mutex::new(Some(committer))),
+            turn,
             checkpointer: Arc::new(std::sync::Mutex::new(Some(checkpointer))),
             next_commit: Arc::new(AtomicU64::new(1)),
             lock: Arc::new(std::sync::Mutex::new(Some(lock))),
@@ -238,6 +244,7 @@ impl Store for SqliteStore {
         let frame = self.frame(mission_id).await?.ok_or_else(|| {
             StoreError::Corrupt(format!("robots: a robot of mission {mission_id}, which is not stored"))
         })?;
+        let _writer = self.turn.lock().await;
         let mut conn = self.pool.acquire().await?;
         let created = async {
             let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
