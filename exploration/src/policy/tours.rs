@@ -32,11 +32,20 @@
 use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_METRES};
 use super::{ClusterCosts, Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
 use crate::cost::{CostCache, CostMap, TraversalKind};
+use crate::frontier::FrontierCluster;
 
 pub(super) const NAME: &str = "tours";
 
 /// The most clusters one tour visits: Held–Karp takes O(2^m·m²).
 pub const MAX_TOUR: usize = 8;
+
+const POCKET_CELLS: ParamSpec = ParamSpec {
+    name: "pocket_cells",
+    description: "beyond its nearest, a tour visits only owned frontier clusters of at most this many cells (pockets); 0 visits any",
+    default: 0.0,
+    min: 0.0,
+    max: 10_000.0,
+};
 
 const TOUR_LENGTH: ParamSpec = ParamSpec {
     name: "tour_length",
@@ -51,9 +60,13 @@ const TOUR_LENGTH: ParamSpec = ParamSpec {
 pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
     name: NAME,
     description: "ours: each robot is sent along the shortest tour through the frontiers it is closest to (Bautin et al. 2011, Kulich et al. 2011); robots closest nowhere take the frontiers nobody is heading to",
-    params: &[MIN_FRONTIER_SIZE, SWITCH_METRES, TOUR_LENGTH],
+    params: &[MIN_FRONTIER_SIZE, SWITCH_METRES, TOUR_LENGTH, POCKET_CELLS],
     build: |c| {
-        Box::new(Tours { switch_margin: c.get("switch_margin"), tour_length: c.get("tour_length").round() as usize })
+        Box::new(Tours {
+            switch_margin: c.get("switch_margin"),
+            tour_length: c.get("tour_length").round() as usize,
+            pocket_cells: c.get("pocket_cells").round() as usize,
+        })
     },
 };
 
@@ -66,11 +79,18 @@ pub struct Tours {
     pub switch_margin: f64,
     /// Clusters per tour, 1 to [`MAX_TOUR`].
     pub tour_length: usize,
+    /// Past the nearest, a tour's stops are the owned clusters of at most
+    /// this many cells; 0 for any cluster.
+    pub pocket_cells: usize,
 }
 
 impl Default for Tours {
     fn default() -> Self {
-        Self { switch_margin: SWITCH_METRES.default, tour_length: TOUR_LENGTH.default as usize }
+        Self {
+            switch_margin: SWITCH_METRES.default,
+            tour_length: TOUR_LENGTH.default as usize,
+            pocket_cells: POCKET_CELLS.default as usize,
+        }
     }
 }
 
@@ -81,7 +101,7 @@ impl Policy for Tours {
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let matrix = cluster_cost_matrix(input, costs, self.switch_margin);
-        let tours = self.tours(&matrix);
+        let tours = self.tours(&matrix, input.clusters);
         let legs = legs_between_stops(input, costs, &matrix, &tours);
         let mut chosen: Vec<Option<usize>> = tours
             .iter()
@@ -112,8 +132,9 @@ impl Policy for Tours {
 
 impl Tours {
     /// Per robot, the clusters it is first at (by score, ties to the robot
-    /// listed first), its `tour_length` nearest of them, nearest first.
-    fn tours(&self, matrix: &ClusterCosts) -> Vec<Vec<usize>> {
+    /// listed first), its `tour_length` nearest of them, nearest first;
+    /// past the nearest, only pockets when `pocket_cells` is set.
+    fn tours(&self, matrix: &ClusterCosts, frontier: &[FrontierCluster]) -> Vec<Vec<usize>> {
         let robots = matrix.len();
         let clusters = matrix.first().map_or(0, Vec::len);
         let mut owned: Vec<Vec<usize>> = vec![Vec::new(); robots];
@@ -127,6 +148,13 @@ impl Tours {
         }
         for (i, stops) in owned.iter_mut().enumerate() {
             stops.sort_by(|&a, &b| score(matrix, i, a).total_cmp(&score(matrix, i, b)).then(a.cmp(&b)));
+            if self.pocket_cells > 0 {
+                let mut rank = 0;
+                stops.retain(|&j| {
+                    rank += 1;
+                    rank == 1 || frontier[j].len() <= self.pocket_cells
+                });
+            }
         }
         // Each cluster on a tour of two or more costs a wavefront: shorten
         // every tour alike until they fit the budget.
@@ -281,7 +309,7 @@ mod tests {
     use super::*;
     use crate::grid::Cell;
     use crate::grid::testing::grid_from_picture;
-    use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
+    use crate::policy::testing::{plan_targets, plan_with_defaults, robot, with_input};
     use crate::policy::{CurrentTask, MinPos, Nearest};
 
     /// A corridor open at both ends, with a side opening up from it at x =
@@ -303,6 +331,38 @@ mod tests {
             let targets = plan_with_defaults(other, &grid, &robots);
             assert_eq!(targets[0], Some(Cell::new(18, 1)), "{other} takes the nearest: {targets:?}");
         }
+    }
+
+    /// The corridor of the test above, three cells wider (the robot in its
+    /// top row, y = 4), so that its left end is a wide opening (a way on
+    /// into unexplored space, not a pocket) while the side opening and the
+    /// right end stay small. With pockets only, the left end is not on the
+    /// tour: the robot takes the side opening and then the right end,
+    /// instead of going back first.
+    #[test]
+    fn a_tour_through_pockets_only_leaves_a_wide_opening_for_later() {
+        let grid = grid_from_picture(&[
+            "##################?######################", //
+            "?.......................................?", //
+            "?.......................................#", //
+            "?.......................................#", //
+            "?.......................................#", //
+            "#########################################", //
+        ]);
+        let robots = [robot(0, Cell::new(10, 4), 1.0)];
+        let sizes = with_input(&grid, &robots, &[Vec::new()], |input| {
+            let mut sizes: Vec<(i32, usize)> = input.clusters.iter().map(|c| (c.representative.x, c.len())).collect();
+            sizes.sort_unstable();
+            sizes
+        });
+        assert!(
+            matches!(sizes.as_slice(), [(1, 4..), (18, 1..=3), (39, 1..=3)]),
+            "left end wide, others small: {sizes:?}"
+        );
+        let any = plan_targets(&Tours::default(), &grid, &robots);
+        assert_eq!(any[0].map(|c| c.x), Some(1), "any cluster on the tour: back to the left end first: {any:?}");
+        let pockets = plan_targets(&Tours { pocket_cells: 3, ..Tours::default() }, &grid, &robots);
+        assert!(pockets[0].is_some_and(|c| (17..=19).contains(&c.x)), "pockets only: the side opening: {pockets:?}");
     }
 
     /// Robot 0 in a corridor is closest to both ends; robot 1 at the bottom
@@ -340,9 +400,9 @@ mod tests {
         ]);
         let mut heading = robot(0, Cell::new(10, 1), 1.0);
         heading.current = Some(CurrentTask { target: Cell::new(18, 1), gain_region: None });
-        let kept = plan_targets(&Tours { switch_margin: 20.0, tour_length: 5 }, &grid, &[heading.clone()]);
+        let kept = plan_targets(&Tours { switch_margin: 20.0, ..Tours::default() }, &grid, &[heading.clone()]);
         assert_eq!(kept[0], Some(Cell::new(18, 1)), "{kept:?}");
-        let switched = plan_targets(&Tours { switch_margin: 1.0, tour_length: 5 }, &grid, &[heading]);
+        let switched = plan_targets(&Tours { switch_margin: 1.0, ..Tours::default() }, &grid, &[heading]);
         assert_eq!(switched[0].map(|c| c.x), Some(1), "{switched:?}");
     }
 
@@ -368,11 +428,11 @@ mod tests {
 
     #[test]
     fn tours_are_shortened_alike_to_fit_the_wavefront_budget() {
-        let policy = Tours { switch_margin: 1.0, tour_length: 5 };
+        let policy = Tours { switch_margin: 1.0, ..Tours::default() };
         // 4 robots own 4 clusters each: 16 wavefronts, within 32.
-        assert!(policy.tours(&four_clusters_each(4)).iter().all(|t| t.len() == 4));
+        assert!(policy.tours(&four_clusters_each(4), &[]).iter().all(|t| t.len() == 4));
         // 10 robots: 40 would exceed it; 3 stops each make 30.
-        let tours = policy.tours(&four_clusters_each(10));
+        let tours = policy.tours(&four_clusters_each(10), &[]);
         assert!(tours.iter().enumerate().all(|(i, t)| t.len() == 3 && t.iter().all(|j| j / 4 == i)), "{tours:?}");
     }
 
