@@ -10,14 +10,14 @@
 //! Under a steady stream of commits a PASSIVE checkpoint never catches up:
 //! frames are appended while it copies, so the log is never fully copied
 //! when the next transaction begins, and SQLite rewinds it only then. The
-//! log grows by the whole write rate (9 MB/s for 1 000 robots at twice the
-//! real rates). Once it passes [`REWIND_PAGES`] the checkpointer takes the
-//! [`WriterTurn`] between two group commits and checkpoints again: with no
-//! writer it copies the rest (a fraction of a period's writes), and the next
-//! transaction starts the log from its beginning. This replaced a
+//! log grows by the whole write rate (about 10 MB/s for 1 000 robots at
+//! twice the real rates). Once it passes [`REWIND_PAGES`] the checkpointer
+//! takes the [`WriterTurn`] between two group commits and checkpoints again:
+//! with no writer it copies the rest (a fraction of a period's writes), and
+//! the next transaction starts the log from its beginning. This replaced a
 //! `wal_checkpoint(TRUNCATE)` once the log passed 64 MB, which holds
-//! SQLite's writer lock while it copies the rest, flushes and cuts the
-//! file: the committer's `BEGIN IMMEDIATE` slept meanwhile in SQLite's busy
+//! SQLite's writer lock while it copies the rest, flushes and cuts the file:
+//! the committer's `BEGIN IMMEDIATE` slept meanwhile in SQLite's busy
 //! handler (1, 2, 5, 10, 15 ms ...), 35–105 ms every few seconds at that
 //! load, the longest waits any map update had. Waiting on our own turn
 //! instead, the committer resumes the moment the checkpoint ends.
