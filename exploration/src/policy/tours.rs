@@ -148,12 +148,10 @@ impl Tours {
         }
         for (i, stops) in owned.iter_mut().enumerate() {
             stops.sort_by(|&a, &b| score(matrix, i, a).total_cmp(&score(matrix, i, b)).then(a.cmp(&b)));
-            if self.pocket_cells > 0 {
-                let mut rank = 0;
-                stops.retain(|&j| {
-                    rank += 1;
-                    rank == 1 || frontier[j].len() <= self.pocket_cells
-                });
+            if self.pocket_cells > 0
+                && let Some(&nearest) = stops.first()
+            {
+                stops.retain(|&j| j == nearest || frontier[j].len() <= self.pocket_cells);
             }
         }
         // Each cluster on a tour of two or more costs a wavefront: shorten

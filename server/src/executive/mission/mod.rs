@@ -662,7 +662,7 @@ impl Mission {
     /// durable too.
     pub(crate) fn apply(&mut self, changes: Changeset) {
         self.apply_changes(changes);
-        self.tell_moved();
+        self.tell(self.moved_assignments());
     }
 
     /// Makes a changeset queued but not yet durable the live state, so that
@@ -790,15 +790,6 @@ impl Mission {
             self.demand_replan("given segmentation changed".to_owned());
         }
         self.changed.send_modify(|v| *v += 1);
-    }
-
-    /// Pushes every assignment whose version moved to its robot's stream.
-    fn tell_moved(&self) {
-        for assignment in self.moved_assignments() {
-            if let Some(slot) = self.robots.get(&assignment.robot_id) {
-                slot.watch.send_replace(assignment);
-            }
-        }
     }
 
     /// The cells of a world rectangle, clipped to the map; `None` outside it.

@@ -97,19 +97,16 @@ async fn checkpoint(pool: &SqlitePool) -> Result<i64, sqlx::Error> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::domain::Timestamp;
     use crate::store::Store;
-    use crate::store::sqlite::tests::{note, spec};
-    use crate::store::sqlite::{Durability, SqliteStore};
+    use crate::store::sqlite::Durability;
+    use crate::store::sqlite::tests::{note, store_with_mission};
 
     /// With SQLite's own checkpoints turned off, the log stays bounded by
     /// ours: it is rewound after each, however much is written.
     #[tokio::test]
     async fn the_log_is_rewound_after_each_checkpoint() {
         let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("wal.db");
-        let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
-        let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
+        let (store, mission) = store_with_mission(&dir.path().join("wal.db"), Durability::Full).await;
         let wal = dir.path().join("wal.db-wal");
         let mut sizes = Vec::new();
         for round in 0..6 {
@@ -136,8 +133,7 @@ mod tests {
         use sqlx::Connection;
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("pinned.db");
-        let store = SqliteStore::open(&path, Durability::Normal).await.unwrap();
-        let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
+        let (store, mission) = store_with_mission(&path, Durability::Normal).await;
         let mut reader = sqlx::SqliteConnection::connect(&format!("sqlite:{}", path.display())).await.unwrap();
         sqlx::query("BEGIN").execute(&mut reader).await.unwrap();
         let _: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM missions").fetch_one(&mut reader).await.unwrap();

@@ -39,8 +39,8 @@ pub(super) struct Pending {
 }
 
 /// The queue the committer drains; closing it (dropping every sender) ends
-/// the committer once the queue is empty.
-/// Each group is written holding `turn` (see [`super::checkpoint`]).
+/// the committer once the queue is empty. Each group is written holding
+/// `turn` (see [`super::checkpoint`]).
 pub(super) fn start(
     pool: SqlitePool,
     turn: WriterTurn,

@@ -22,6 +22,13 @@ pub(super) fn note(mission_id: MissionId, at: i64, detail: String) -> Changeset 
     Changeset { events: vec![event], ..Changeset::default() }
 }
 
+/// A store in the new file `path`, holding one mission of [`spec`].
+pub(super) async fn store_with_mission(path: &std::path::Path, durability: Durability) -> (SqliteStore, MissionRecord) {
+    let store = SqliteStore::open(path, durability).await.unwrap();
+    let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
+    (store, mission)
+}
+
 pub(super) fn spec() -> MissionSpec {
     MissionSpec {
         name: "lab".into(),
