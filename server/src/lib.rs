@@ -41,13 +41,15 @@ pub use connections::ConnectionLimits;
 pub use executive::{Executive, ExecutiveSettings};
 pub use store::compact::Compaction;
 pub use store::sqlite::{Durability, SqliteStore};
+pub use store::{Location, PostgresStore};
 
 /// How to run an executive.
 #[derive(Debug, Clone)]
 pub struct Config {
-    /// The SQLite database file (created if missing).
-    pub db_path: PathBuf,
-    /// How hard SQLite works to keep each commit.
+    /// The database: a SQLite file (created if missing) or a PostgreSQL URL.
+    pub db: store::Location,
+    /// How hard SQLite works to keep each commit (PostgreSQL: as the
+    /// server is set, `synchronous_commit`).
     pub durability: Durability,
     /// Limits and knobs.
     pub executive: ExecutiveSettings,
@@ -65,10 +67,10 @@ pub struct Config {
 }
 
 impl Config {
-    /// Defaults for a database file.
-    pub fn new(db_path: impl Into<PathBuf>) -> Self {
+    /// Defaults for a database.
+    pub fn new(db: impl Into<store::Location>) -> Self {
         Self {
-            db_path: db_path.into(),
+            db: db.into(),
             durability: Durability::default(),
             executive: ExecutiveSettings::default(),
             operator_token: None,
@@ -213,9 +215,9 @@ pub async fn run_with(
         (None, _) => None,
     };
     let metrics = Arc::new(metrics::Metrics::new());
-    let store = SqliteStore::open_measured(&config.db_path, config.durability, Some(Arc::clone(&metrics))).await?;
+    let store = config.db.open(config.durability, Some(Arc::clone(&metrics))).await?;
     let clock = config.executive.clock.clone();
-    let executive = match Executive::open(Arc::new(store.clone()), config.executive, Arc::clone(&metrics)).await {
+    let executive = match Executive::open(Arc::clone(&store), config.executive, Arc::clone(&metrics)).await {
         Ok(executive) => Arc::new(executive),
         Err(e) => {
             store.close().await;
@@ -224,7 +226,7 @@ pub async fn run_with(
     };
     let sweeper = tokio::spawn(sweep_until(executive.clone(), clock, streams_end.clone()));
     let compactor = tokio::spawn(store::compact::run(
-        Arc::new(store.clone()),
+        Arc::clone(&store),
         config.compaction,
         Arc::clone(&metrics),
         streams_end.clone(),
@@ -259,7 +261,7 @@ pub async fn run_with(
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
         .build_v1alpha()?;
 
-    tracing::info!(?address, db = %config.db_path.display(), tls = config.tls.is_some(), "executive serving");
+    tracing::info!(?address, db = %config.db, tls = config.tls.is_some(), "executive serving");
     let incoming = connections::Incoming::new(listener, config.connections.clone());
     let drain = {
         let health = health.clone();

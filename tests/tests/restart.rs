@@ -10,8 +10,19 @@ use tonic::Code;
 #[tokio::test]
 async fn a_restart_on_the_same_file_restores_map_robots_and_tasks() {
     let dir = tempfile::tempdir().unwrap();
-    let db = dir.path().join("x.db");
-    let exec = TestExecutive::start(&db).await;
+    a_restart_restores_map_robots_and_tasks(dir.path().join("x.db").into()).await;
+}
+
+/// The same on PostgreSQL (where `EXPLORATION_POSTGRES_URL` names a server).
+#[tokio::test]
+async fn a_restart_on_the_same_postgres_database_restores_map_robots_and_tasks() {
+    if let Some(url) = common::postgres_database("restart").await {
+        a_restart_restores_map_robots_and_tasks(coordinator::Location::Postgres(url)).await;
+    }
+}
+
+async fn a_restart_restores_map_robots_and_tasks(db: coordinator::Location) {
+    let exec = TestExecutive::start(db.clone()).await;
     let mut missions = exec.missions();
     let mut fleet = exec.fleet();
     let mission = create_mission(&mut missions, 60, 40, "burgard").await;
@@ -40,7 +51,7 @@ async fn a_restart_on_the_same_file_restores_map_robots_and_tasks() {
     exec.stop().await;
     assert!(!matches!(stream.message().await, Ok(Some(_))), "the stream ended with the executive");
 
-    let exec = TestExecutive::start(&db).await;
+    let exec = TestExecutive::start(db).await;
     let mut missions = exec.missions();
     let mut fleet = exec.fleet();
     let mission_after =

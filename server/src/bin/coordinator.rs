@@ -9,7 +9,7 @@ use tracing_subscriber::EnvFilter;
 
 use std::time::Duration;
 
-use coordinator::{Compaction, Config, ConnectionLimits, Durability, ExecutiveSettings, TlsConfig};
+use coordinator::{Compaction, Config, ConnectionLimits, Durability, ExecutiveSettings, Location, TlsConfig};
 
 /// Planning allocates a cost map per robot (megabytes each) and drops it
 /// when the plan is made; the system allocator hands such blocks back to
@@ -28,9 +28,10 @@ struct Args {
     /// Address to serve gRPC on.
     #[arg(long, env = "COORDINATOR_LISTEN", default_value = "127.0.0.1:50051")]
     listen: SocketAddr,
-    /// SQLite database file; created if missing.
+    /// The database: a SQLite file (created if missing), or a PostgreSQL
+    /// URL (`postgres://user:password@host:5432/name`).
     #[arg(long, env = "COORDINATOR_DB", default_value = "coordinator.db")]
-    db: PathBuf,
+    db: Location,
     /// `full`: every acknowledged write survives a power cut; `normal`: it
     /// survives a crash of the process (faster).
     #[arg(long, env = "COORDINATOR_DURABILITY", value_enum, default_value_t = DurabilityArg::Full)]

@@ -1,7 +1,8 @@
 //! Persistence of missions, robots, the map update log, tasks and bids.
 //!
 //! The executive talks to a [`Store`] only; SQL lives behind it, in
-//! [`sqlite`]. Every write is a [`Changeset`] committed in one transaction,
+//! [`sql`], written once for the two engines it runs on: [`sqlite`] (the
+//! default, one file) and [`postgres`] (a server). Every write is a [`Changeset`] committed in one transaction,
 //! so a crash leaves either all of an operation or none of it, and a commit
 //! that fails leaves the store as it was and usable. A store belongs to one
 //! executive at a time ([`lock`]).
@@ -18,10 +19,97 @@ use exploration::policy::PolicyConfig;
 
 pub mod compact;
 pub mod lock;
+pub mod postgres;
 pub mod snapshot;
+pub mod sql;
 pub mod sqlite;
+#[cfg(test)]
+mod suite;
 
+pub use postgres::PostgresStore;
 pub use sqlite::SqliteStore;
+
+/// Where the store is: a database file, or a PostgreSQL server.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Location {
+    /// A SQLite file, created if missing.
+    Sqlite(std::path::PathBuf),
+    /// A `postgres://` URL.
+    Postgres(String),
+}
+
+impl Location {
+    /// `text` as `--db` reads it: a `postgres://` or `postgresql://` URL is
+    /// PostgreSQL; `sqlite:PATH`, `sqlite://PATH` or any other text is a
+    /// SQLite file.
+    pub fn parse(text: &str) -> Self {
+        if text.starts_with("postgres://") || text.starts_with("postgresql://") {
+            return Self::Postgres(text.to_owned());
+        }
+        let path = text.strip_prefix("sqlite://").or_else(|| text.strip_prefix("sqlite:")).unwrap_or(text);
+        Self::Sqlite(path.into())
+    }
+
+    /// Opens the store, with its commit latency counted in `metrics`.
+    pub async fn open(
+        &self,
+        durability: sqlite::Durability,
+        metrics: Option<std::sync::Arc<crate::metrics::Metrics>>,
+    ) -> Result<std::sync::Arc<dyn Store>, StoreError> {
+        Ok(match self {
+            Self::Sqlite(path) => std::sync::Arc::new(SqliteStore::open_measured(path, durability, metrics).await?),
+            Self::Postgres(url) => std::sync::Arc::new(PostgresStore::open(url, metrics).await?),
+        })
+    }
+}
+
+impl std::str::FromStr for Location {
+    type Err = std::convert::Infallible;
+
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        Ok(Self::parse(text))
+    }
+}
+
+impl std::fmt::Display for Location {
+    /// The file, or the URL without its password.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Sqlite(path) => write!(f, "{}", path.display()),
+            Self::Postgres(url) => f.write_str(&postgres::without_password(url)),
+        }
+    }
+}
+
+impl From<std::path::PathBuf> for Location {
+    fn from(path: std::path::PathBuf) -> Self {
+        Self::Sqlite(path)
+    }
+}
+
+impl From<&str> for Location {
+    fn from(text: &str) -> Self {
+        Self::parse(text)
+    }
+}
+
+impl From<String> for Location {
+    fn from(text: String) -> Self {
+        Self::parse(&text)
+    }
+}
+
+impl From<&std::path::PathBuf> for Location {
+    fn from(path: &std::path::PathBuf) -> Self {
+        Self::Sqlite(path.clone())
+    }
+}
+
+impl From<&std::path::Path> for Location {
+    fn from(path: &std::path::Path) -> Self {
+        Self::Sqlite(path.to_owned())
+    }
+}
 
 /// Why the store failed. Never shown to clients in detail; logged once by the service.
 #[derive(Debug, thiserror::Error)]
@@ -84,6 +172,9 @@ impl StoreError {
                 _ => FailureKind::Internal,
             };
         };
+        if let Some(e) = e.try_downcast_ref::<sqlx::postgres::PgDatabaseError>() {
+            return postgres_failure(e.code());
+        }
         // SQLite's primary result codes (https://www.sqlite.org/rescode.html)
         // are the low byte of the extended ones sqlx reports.
         let primary = e.code().and_then(|c| c.parse::<i32>().ok()).map(|c| c & 0xff);
@@ -92,6 +183,19 @@ impl StoreError {
             Some(5 | 6 | 8 | 10 | 14 | 15) => FailureKind::Transient, // BUSY, LOCKED, READONLY, IOERR, CANTOPEN, PROTOCOL
             _ => FailureKind::Internal,
         }
+    }
+}
+
+/// What a PostgreSQL error (its SQLSTATE,
+/// https://www.postgresql.org/docs/current/errcodes-appendix.html) means.
+fn postgres_failure(sqlstate: &str) -> FailureKind {
+    match sqlstate {
+        "53100" | "53200" | "54000" => FailureKind::Full, // disk full, out of memory, a limit of the server
+        // Connection lost, serialization or deadlock, a lock or statement
+        // timeout, the server shutting down or starting.
+        _ if sqlstate.starts_with("08") || sqlstate.starts_with("40") => FailureKind::Transient,
+        "55P03" | "57014" | "57P01" | "57P02" | "57P03" | "53300" => FailureKind::Transient,
+        _ => FailureKind::Internal,
     }
 }
 
@@ -405,4 +509,8 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// Where a backup may be written for a while (the same disk as the store,
     /// which must have room for it).
     fn backup_dir(&self) -> std::path::PathBuf;
+
+    /// Writes what is queued, closes every connection and lets go of the
+    /// database for the next executive.
+    async fn close(&self);
 }

@@ -20,14 +20,14 @@ pub struct TestExecutive {
     pub url: String,
     /// The HTTP listener's address, when it serves HTTP.
     pub http: Option<SocketAddr>,
-    pub db: PathBuf,
+    pub db: coordinator::Location,
     stop: CancellationToken,
     task: tokio::task::JoinHandle<Result<(), coordinator::ServeError>>,
 }
 
 impl TestExecutive {
-    /// Serves on 127.0.0.1:0 with the database at `db`.
-    pub async fn start(db: &Path) -> Self {
+    /// Serves on 127.0.0.1:0 with the database `db`.
+    pub async fn start(db: impl Into<coordinator::Location>) -> Self {
         Self::start_with(coordinator::Config::new(db)).await
     }
 
@@ -45,7 +45,7 @@ impl TestExecutive {
 
     async fn start_listening(config: coordinator::Config, http: Option<tokio::net::TcpListener>) -> Self {
         let http_address = http.as_ref().map(|l| l.local_addr().unwrap());
-        let db = config.db_path.clone();
+        let db = config.db.clone();
         // A TLS executive is probed by its test, which holds the CA.
         let probe = config.tls.is_none();
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
@@ -125,6 +125,12 @@ pub fn shared_maps(what: &str) -> Option<PathBuf> {
             None
         }
     }
+}
+
+/// A fresh PostgreSQL database named after `test`, where
+/// `EXPLORATION_POSTGRES_URL` names a server (`.ci/run` starts one).
+pub async fn postgres_database(test: &str) -> Option<String> {
+    coordinator::store::postgres::test_database(&format!("e2e_{test}")).await
 }
 
 /// A binary of the workspace, built by the same cargo invocation as this test.

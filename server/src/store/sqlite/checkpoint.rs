@@ -99,7 +99,8 @@ mod tests {
     use super::*;
     use crate::store::Store;
     use crate::store::sqlite::Durability;
-    use crate::store::sqlite::tests::{note, store_with_mission};
+    use crate::store::sqlite::tests::store_with_mission;
+    use crate::store::suite::note;
 
     /// With SQLite's own checkpoints turned off, the log stays bounded by
     /// ours: it is rewound after each, however much is written.
@@ -115,7 +116,7 @@ mod tests {
                 store.commit(note(mission.id, i, detail)).await.unwrap();
             }
             sizes.push(std::fs::metadata(&wal).unwrap().len());
-            let log = checkpoint(&store.pool).await.unwrap();
+            let log = checkpoint(&store.backend().pool).await.unwrap();
             assert!(log > 0, "round {round} wrote to the log");
         }
         // Unchecked, six rounds would make it six times the first round's
@@ -142,10 +143,10 @@ mod tests {
         for i in 0..300 {
             store.commit(note(mission.id, i, big.clone())).await.unwrap();
         }
-        let turn = store.turn.clone();
-        assert!(checkpoint(&store.pool).await.unwrap() > REWIND_PAGES, "the log passed the rewinding size");
+        let turn = store.backend().turn.clone();
+        assert!(checkpoint(&store.backend().pool).await.unwrap() > REWIND_PAGES, "the log passed the rewinding size");
         let checkpoints = tokio::spawn({
-            let (pool, turn) = (store.pool.clone(), turn.clone());
+            let (pool, turn) = (store.backend().pool.clone(), turn.clone());
             async move {
                 for _ in 0..20 {
                     checkpoint_and_rewind(&pool, &turn).await.unwrap();
@@ -159,9 +160,9 @@ mod tests {
         checkpoints.await.unwrap();
 
         sqlx::query("COMMIT").execute(&mut reader).await.unwrap();
-        checkpoint_and_rewind(&store.pool, &turn).await.unwrap();
+        checkpoint_and_rewind(&store.backend().pool, &turn).await.unwrap();
         store.commit(note(mission.id, 320, "z".into())).await.unwrap();
-        let log = checkpoint(&store.pool).await.unwrap();
+        let log = checkpoint(&store.backend().pool).await.unwrap();
         assert!(log < 16, "the log was not rewound once the reader had gone: {log} pages");
         assert_eq!(store.events(mission.id, 0, u32::MAX).await.unwrap().len(), 321);
     }

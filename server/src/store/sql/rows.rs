@@ -7,8 +7,7 @@
 
 use std::collections::BTreeMap;
 
-use sqlx::Row;
-use sqlx::sqlite::SqliteRow;
+use super::statement::{Columns, Value};
 
 use crate::domain::{
     Actor, Bid, BlacklistEntry, Leftover, LeftoverReason, LifecycleSettings, MissionEvent, MissionRecord, MissionSpec,
@@ -32,9 +31,9 @@ pub(super) struct At<'a> {
 
 impl<'a> At<'a> {
     /// The row of `table` whose identity is in column `key`.
-    pub(super) fn row(table: &'a str, row: &SqliteRow, key: &str) -> Result<Self, StoreError> {
+    pub(super) fn row(table: &'a str, row: &impl Columns, key: &str) -> Result<Self, StoreError> {
         let id = row
-            .try_get::<i64, _>(key)
+            .value::<i64>(key)
             .map_err(|e| StoreError::Corrupt(format!("{table}: a row without a valid {key}: {e}")))?;
         Ok(Self { table, id })
     }
@@ -49,33 +48,30 @@ impl<'a> At<'a> {
     }
 
     /// A column of the expected type.
-    pub(super) fn get<'r, T>(self, row: &'r SqliteRow, column: &str) -> Result<T, StoreError>
-    where
-        T: sqlx::Decode<'r, sqlx::Sqlite> + sqlx::Type<sqlx::Sqlite>,
-    {
-        row.try_get(column).map_err(|e| self.bad(format!("{column}: {e}")))
+    pub(super) fn get<T: Value>(self, row: &impl Columns, column: &str) -> Result<T, StoreError> {
+        row.value(column).map_err(|e| self.bad(format!("{column}: {e}")))
     }
 
-    fn finite(self, row: &SqliteRow, column: &str) -> Result<f64, StoreError> {
+    fn finite(self, row: &impl Columns, column: &str) -> Result<f64, StoreError> {
         validate::finite(self.get(row, column)?, column).map_err(|e| self.invalid(e))
     }
 
-    fn in_range(self, row: &SqliteRow, column: &str, min: f64, max: f64) -> Result<f64, StoreError> {
+    fn in_range(self, row: &impl Columns, column: &str, min: f64, max: f64) -> Result<f64, StoreError> {
         validate::in_range(self.get(row, column)?, column, min, max, "").map_err(|e| self.invalid(e))
     }
 
-    fn count(self, row: &SqliteRow, column: &str) -> Result<u64, StoreError> {
+    fn count(self, row: &impl Columns, column: &str) -> Result<u64, StoreError> {
         validate::count(self.get(row, column)?, column).map_err(|e| self.invalid(e))
     }
 
-    fn id_column(self, row: &SqliteRow, column: &str) -> Result<u64, StoreError> {
+    fn id_column(self, row: &impl Columns, column: &str) -> Result<u64, StoreError> {
         match self.count(row, column)? {
             0 => Err(self.bad(format!("{column} is 0; identities start at 1"))),
             id => Ok(id),
         }
     }
 
-    fn flag(self, row: &SqliteRow, column: &str) -> Result<bool, StoreError> {
+    fn flag(self, row: &impl Columns, column: &str) -> Result<bool, StoreError> {
         match self.get::<i64>(row, column)? {
             0 => Ok(false),
             1 => Ok(true),
@@ -83,7 +79,7 @@ impl<'a> At<'a> {
         }
     }
 
-    fn cell(self, row: &SqliteRow, x: &str, y: &str) -> Result<Cell, StoreError> {
+    fn cell(self, row: &impl Columns, x: &str, y: &str) -> Result<Cell, StoreError> {
         let coordinate = |column: &str| {
             let v: i64 = self.get(row, column)?;
             i32::try_from(v).map_err(|_| self.bad(format!("{column} is {v}, not a cell coordinate")))
@@ -91,26 +87,26 @@ impl<'a> At<'a> {
         Ok(Cell::new(coordinate(x)?, coordinate(y)?))
     }
 
-    fn point(self, row: &SqliteRow, x: &str, y: &str) -> Result<Point2, StoreError> {
+    fn point(self, row: &impl Columns, x: &str, y: &str) -> Result<Point2, StoreError> {
         // Finite is enough: every use clips world points to the grid in f64.
         Ok(Point2::new(self.finite(row, x)?, self.finite(row, y)?))
     }
 
-    fn on_map(self, row: &SqliteRow, x: &str, y: &str, frame: &GridFrame) -> Result<Point2, StoreError> {
+    fn on_map(self, row: &impl Columns, x: &str, y: &str, frame: &GridFrame) -> Result<Point2, StoreError> {
         let point = Point2::new(self.finite(row, x)?, self.finite(row, y)?);
         validate::on_map(point, frame, &format!("({x}, {y})")).map_err(|e| self.invalid(e))
     }
 
-    fn timestamp(self, row: &SqliteRow, column: &str) -> Result<Timestamp, StoreError> {
+    fn timestamp(self, row: &impl Columns, column: &str) -> Result<Timestamp, StoreError> {
         Ok(Timestamp(self.get(row, column)?))
     }
 
-    fn parse<T>(self, row: &SqliteRow, column: &str, parse: impl Fn(&str) -> Option<T>) -> Result<T, StoreError> {
+    fn parse<T>(self, row: &impl Columns, column: &str, parse: impl Fn(&str) -> Option<T>) -> Result<T, StoreError> {
         let text: String = self.get(row, column)?;
         parse(&text).ok_or_else(|| self.bad(format!("{column} {text:?} is not a known value")))
     }
 
-    fn name(self, row: &SqliteRow, column: &str) -> Result<String, StoreError> {
+    fn name(self, row: &impl Columns, column: &str) -> Result<String, StoreError> {
         validate::name(&self.get::<String>(row, column)?, column).map_err(|e| self.invalid(e))
     }
 }
@@ -150,7 +146,7 @@ fn leftovers_from_json(at: At<'_>, json: &str) -> Result<Vec<Leftover>, StoreErr
 }
 
 /// The grid frame of a `missions` row.
-pub(super) fn frame_from_row(at: At<'_>, row: &SqliteRow) -> Result<GridFrame, StoreError> {
+pub(super) fn frame_from_row(at: At<'_>, row: &impl Columns) -> Result<GridFrame, StoreError> {
     validate::frame(
         at.get(row, "resolution")?,
         Point2::new(at.get(row, "origin_x")?, at.get(row, "origin_y")?),
@@ -161,7 +157,7 @@ pub(super) fn frame_from_row(at: At<'_>, row: &SqliteRow) -> Result<GridFrame, S
     .map_err(|e| at.invalid(e))
 }
 
-pub(super) fn mission_from_row(row: &SqliteRow) -> Result<MissionRecord, StoreError> {
+pub(super) fn mission_from_row(row: &impl Columns) -> Result<MissionRecord, StoreError> {
     let at = At::row("missions", row, "id")?;
     let id = at.id_column(row, "id")?;
     let params_json: String = at.get(row, "policy_params")?;
@@ -211,7 +207,7 @@ pub(super) fn mission_from_row(row: &SqliteRow) -> Result<MissionRecord, StoreEr
 }
 
 /// A robot of the mission whose grid is `frame`.
-pub(super) fn robot_from_row(row: &SqliteRow, frame: &GridFrame) -> Result<RobotRecord, StoreError> {
+pub(super) fn robot_from_row(row: &impl Columns, frame: &GridFrame) -> Result<RobotRecord, StoreError> {
     let at = At::row("robots", row, "id")?;
     let capabilities = Capabilities {
         sensor_range_m: at.get(row, "sensor_range_m")?,
@@ -243,7 +239,7 @@ pub(super) fn robot_from_row(row: &SqliteRow, frame: &GridFrame) -> Result<Robot
     })
 }
 
-pub(super) fn task_from_row(row: &SqliteRow) -> Result<TaskRecord, StoreError> {
+pub(super) fn task_from_row(row: &impl Columns) -> Result<TaskRecord, StoreError> {
     let at = At::row("tasks", row, "id")?;
     let gain_region = match (
         at.get::<Option<i64>>(row, "gain_x")?,
@@ -281,7 +277,7 @@ pub(super) fn task_from_row(row: &SqliteRow) -> Result<TaskRecord, StoreError> {
     })
 }
 
-pub(super) fn transition_from_row(row: &SqliteRow) -> Result<(TaskId, Transition), StoreError> {
+pub(super) fn transition_from_row(row: &impl Columns) -> Result<(TaskId, Transition), StoreError> {
     let at = At::row("task_transitions", row, "id")?;
     let from = match at.get::<Option<String>>(row, "from_state")? {
         Some(_) => Some(at.parse(row, "from_state", TaskState::parse)?),
@@ -301,7 +297,7 @@ pub(super) fn transition_from_row(row: &SqliteRow) -> Result<(TaskId, Transition
 }
 
 /// A logged patch of the mission whose grid is `frame`, with its log position.
-pub(super) fn patch_from_row(row: &SqliteRow, frame: &GridFrame) -> Result<(u64, LoggedPatch), StoreError> {
+pub(super) fn patch_from_row(row: &impl Columns, frame: &GridFrame) -> Result<(u64, LoggedPatch), StoreError> {
     let at = At::row("map_patches", row, "id")?;
     let side = |column: &str| {
         let v: i64 = at.get(row, column)?;
@@ -321,7 +317,7 @@ pub(super) fn patch_from_row(row: &SqliteRow, frame: &GridFrame) -> Result<(u64,
 
 /// A mission's map snapshot, its bytes unchecked until they are decoded
 /// (see [`crate::store::StoredMap::fuse`]).
-pub(super) fn snapshot_from_row(row: &SqliteRow) -> Result<MapSnapshot, StoreError> {
+pub(super) fn snapshot_from_row(row: &impl Columns) -> Result<MapSnapshot, StoreError> {
     let at = At::row("map_snapshots", row, "mission_id")?;
     Ok(MapSnapshot {
         mission_id: at.id_column(row, "mission_id")?,
@@ -332,7 +328,7 @@ pub(super) fn snapshot_from_row(row: &SqliteRow) -> Result<MapSnapshot, StoreErr
     })
 }
 
-pub(super) fn bid_from_row(row: &SqliteRow) -> Result<Bid, StoreError> {
+pub(super) fn bid_from_row(row: &impl Columns) -> Result<Bid, StoreError> {
     let at = At::row("bids", row, "robot_id")?;
     Ok(Bid {
         target: at.point(row, "target_x", "target_y")?,
@@ -345,7 +341,7 @@ pub(super) fn bid_from_row(row: &SqliteRow) -> Result<Bid, StoreError> {
     })
 }
 
-pub(super) fn blacklist_from_row(row: &SqliteRow) -> Result<BlacklistEntry, StoreError> {
+pub(super) fn blacklist_from_row(row: &impl Columns) -> Result<BlacklistEntry, StoreError> {
     let at = At::row("blacklist", row, "robot_id")?;
     Ok(BlacklistEntry {
         robot_id: at.id_column(row, "robot_id")?,
@@ -355,7 +351,7 @@ pub(super) fn blacklist_from_row(row: &SqliteRow) -> Result<BlacklistEntry, Stor
     })
 }
 
-pub(super) fn region_from_row(row: &SqliteRow) -> Result<Region, StoreError> {
+pub(super) fn region_from_row(row: &impl Columns) -> Result<Region, StoreError> {
     let at = At::row("forbidden_regions", row, "id")?;
     let (min, max) = (at.point(row, "min_x", "min_y")?, at.point(row, "max_x", "max_y")?);
     if min.x >= max.x || min.y >= max.y {
@@ -372,7 +368,7 @@ pub(super) fn region_from_row(row: &SqliteRow) -> Result<Region, StoreError> {
     })
 }
 
-pub(super) fn event_from_row(row: &SqliteRow) -> Result<MissionEvent, StoreError> {
+pub(super) fn event_from_row(row: &impl Columns) -> Result<MissionEvent, StoreError> {
     let at = At::row("mission_events", row, "id")?;
     Ok(MissionEvent {
         id: at.id_column(row, "id")?,
@@ -391,7 +387,7 @@ fn decode_labels(at: At<'_>, bytes: &[u8], len: usize) -> Result<Vec<u32>, Store
     exploration_proto::label_runs::decode(bytes, len).map_err(|e| at.bad(format!("labels {e}")))
 }
 
-pub(super) fn rooms_from_row(row: &SqliteRow, frame: GridFrame) -> Result<Rooms, StoreError> {
+pub(super) fn rooms_from_row(row: &impl Columns, frame: GridFrame) -> Result<Rooms, StoreError> {
     let at = At::row("given_segmentations", row, "mission_id")?;
     Ok(decode_labels(at, &at.get::<Vec<u8>>(row, "label_runs")?, frame.len())?.into())
 }
@@ -419,7 +415,7 @@ pub(super) fn critical_points_json(segmentation: &Segmentation) -> String {
 }
 
 /// The segmentation of the mission whose grid is `frame`.
-pub(super) fn segmentation_from_row(row: &SqliteRow, frame: GridFrame) -> Result<StoredSegmentation, StoreError> {
+pub(super) fn segmentation_from_row(row: &impl Columns, frame: GridFrame) -> Result<StoredSegmentation, StoreError> {
     let at = At::row("segmentations", row, "mission_id")?;
     let bad = |what: &str| at.bad(what);
     let labels = decode_labels(at, &at.get::<Vec<u8>>(row, "labels")?, frame.len())?;
@@ -514,7 +510,7 @@ fn decode_cells(at: &At, stored: Vec<u8>, format: i64, count: u64) -> Result<Vec
 }
 
 /// Every robot's token hash: 64 lower-case hex digits.
-pub(super) fn token_from_row(row: &SqliteRow) -> Result<(RobotId, String), StoreError> {
+pub(super) fn token_from_row(row: &impl Columns) -> Result<(RobotId, String), StoreError> {
     let at = At::row("robots", row, "id")?;
     let hash: String = at.get(row, "token_sha256")?;
     if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b)) {

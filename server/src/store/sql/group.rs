@@ -2,8 +2,9 @@
 //! are written together in the next, and each is acknowledged only once the
 //! transaction holding it is durable.
 //!
-//! With `synchronous = FULL` every commit waits for the disk, and SQLite
-//! writes one transaction at a time; a thousand robots reporting several
+//! With `synchronous = FULL` (or PostgreSQL's `synchronous_commit`) every
+//! commit waits for the disk, and the store writes one transaction at a
+//! time; a thousand robots reporting several
 //! times a second would queue behind the disk one changeset after another.
 //! Grouping pays the wait once per group. If a group fails, its changesets
 //! are written again one by one, in order, so that one bad changeset (a
@@ -13,13 +14,12 @@
 //! several changesets of a mission, each prepared on the one before.
 
 use std::collections::HashMap;
+use std::sync::Arc;
 use std::time::Instant;
 
-use sqlx::sqlite::SqlitePool;
-use sqlx::{Connection, SqliteConnection};
 use tokio::sync::{mpsc, oneshot};
 
-use super::checkpoint::WriterTurn;
+use super::statement::{Backend, Transaction};
 use super::write;
 use crate::metrics::Metrics;
 use crate::store::{Changeset, CommitId, FailureKind, StoreError};
@@ -39,23 +39,16 @@ pub(super) struct Pending {
 }
 
 /// The queue the committer drains; closing it (dropping every sender) ends
-/// the committer once the queue is empty. Each group is written holding
-/// `turn` (see [`super::checkpoint`]).
-pub(super) fn start(
-    pool: SqlitePool,
-    turn: WriterTurn,
-    metrics: Option<std::sync::Arc<Metrics>>,
+/// the committer once the queue is empty.
+pub(super) fn start<B: Backend>(
+    backend: Arc<B>,
+    metrics: Option<Arc<Metrics>>,
 ) -> (mpsc::Sender<Pending>, tokio::task::JoinHandle<()>) {
     let (sender, receiver) = mpsc::channel(4 * MAX_GROUP);
-    (sender, tokio::spawn(run(pool, turn, receiver, metrics)))
+    (sender, tokio::spawn(run(backend, receiver, metrics)))
 }
 
-async fn run(
-    pool: SqlitePool,
-    turn: WriterTurn,
-    mut queue: mpsc::Receiver<Pending>,
-    metrics: Option<std::sync::Arc<Metrics>>,
-) {
+async fn run<B: Backend>(backend: Arc<B>, mut queue: mpsc::Receiver<Pending>, metrics: Option<Arc<Metrics>>) {
     let mut received = Vec::with_capacity(MAX_GROUP);
     let mut broken = Broken::default();
     while queue.recv_many(&mut received, MAX_GROUP).await > 0 {
@@ -71,8 +64,7 @@ async fn run(
             continue;
         }
         let changesets: Vec<Changeset> = group.iter().map(|p| p.changes.clone()).collect();
-        let _writer = turn.lock().await;
-        match write_group(&pool, &changesets).await {
+        match write_group(&*backend, &changesets).await {
             Ok(()) => {
                 for pending in group {
                     let _ = pending.reply.send(Ok(pending.changes));
@@ -86,7 +78,7 @@ async fn run(
                     let Some(pending) = broken.unless_abandoned(pending) else { continue };
                     let outcome = match first_error.take().filter(|_| size == 1) {
                         Some(e) => Err(e),
-                        None => write_group(&pool, std::slice::from_ref(&pending.changes)).await,
+                        None => write_group(&*backend, std::slice::from_ref(&pending.changes)).await,
                     };
                     match outcome {
                         Ok(()) => {
@@ -130,23 +122,10 @@ impl Broken {
     }
 }
 
-/// Writes `changesets` in one transaction. A failure never returns its
-/// connection to the pool: after a full disk SQLite may or may not have
-/// rolled back by itself and sqlx's count of open transactions may be off,
-/// so the connection is closed, which rolls back whatever is still open.
-async fn write_group(pool: &SqlitePool, changesets: &[Changeset]) -> Result<(), StoreError> {
-    let mut conn = pool.acquire().await?;
-    let written = write_in_transaction(&mut conn, changesets).await;
-    if written.is_err() {
-        conn.close_on_drop();
-    }
-    written
-}
-
-async fn write_in_transaction(conn: &mut SqliteConnection, changesets: &[Changeset]) -> Result<(), StoreError> {
-    // IMMEDIATE: take the write lock now, not halfway through.
-    let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
+/// Writes `changesets` in one transaction; on a failure, none of them
+/// (see [`Transaction`]).
+async fn write_group(backend: &impl Backend, changesets: &[Changeset]) -> Result<(), StoreError> {
+    let mut tx = backend.begin_write().await?;
     write::group(&mut tx, changesets).await?;
-    tx.commit().await?;
-    Ok(())
+    tx.commit().await
 }
