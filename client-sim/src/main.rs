@@ -240,8 +240,10 @@ struct RunArgs {
     /// Seed of every random choice.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Executive to drive, e.g. http://127.0.0.1:50051; without it, one is
-    /// started on a loopback port for the run.
+    /// Executive to drive, e.g. http://127.0.0.1:50051, or replicas sharing
+    /// a database, comma-separated (each call follows its mission to the
+    /// replica that holds it); without it, one is started on a loopback
+    /// port for the run.
     #[arg(long)]
     server: Option<String>,
     /// Operator token of that executive; for the embedded one, the token it

@@ -14,9 +14,9 @@ use std::process::ExitCode;
 
 use anyhow::{Context, anyhow, bail};
 use clap::{Parser, Subcommand};
+use exploration_proto::replicas::Replicas;
 use tonic::Code;
 use tonic::service::interceptor::InterceptedService;
-use tonic::transport::Channel;
 
 use exploration_proto::Bearer;
 use exploration_proto::v1 as pb;
@@ -26,7 +26,7 @@ use exploration_proto::v1::override_robot_request::{Action, Cancel, Hold, Home, 
 #[derive(Debug, Parser)]
 #[command(name = "coordctl", version, about = "Watch and steer robot fleets exploring through the executive")]
 struct Cli {
-    /// The executive's address.
+    /// The executive's address; replicas sharing a database: their addresses, comma-separated.
     #[arg(long, global = true, env = "COORDINATOR_URL", default_value = "http://127.0.0.1:50051")]
     server: String,
     /// The operator token (see `coordinator --operator-token`).
@@ -259,7 +259,7 @@ enum OverrideAction {
     Cancel,
 }
 
-type Missions = MissionsClient<InterceptedService<Channel, Bearer>>;
+type Missions = MissionsClient<InterceptedService<Replicas, Bearer>>;
 
 #[tokio::main(flavor = "current_thread")]
 async fn main() -> ExitCode {
@@ -306,8 +306,11 @@ impl std::fmt::Display for Usage {
 impl std::error::Error for Usage {}
 
 async fn connect(cli: &Cli) -> anyhow::Result<Missions> {
-    if let Some(warning) = exploration_proto::client::plaintext_token_warning(&cli.server, cli.token.as_deref()) {
-        eprintln!("warning: {warning}");
+    for replica in cli.server.split(',') {
+        if let Some(warning) = exploration_proto::client::plaintext_token_warning(replica.trim(), cli.token.as_deref())
+        {
+            eprintln!("warning: {warning}");
+        }
     }
     let tls = match (&cli.tls_ca, &cli.tls_cert) {
         (None, None) => None,
@@ -320,11 +323,8 @@ async fn connect(cli: &Cli) -> anyhow::Result<Missions> {
             .map_err(|e| Usage(format!("TLS files: {e}")))?,
         ),
     };
-    let channel = exploration_proto::client::endpoint(&cli.server, tls.as_ref())
-        .map_err(|e| Usage(format!("--server {}: {e}", cli.server)))?
-        .connect()
-        .await
-        .with_context(|| format!("cannot reach the executive at {}", cli.server))?;
+    let channel =
+        Replicas::from_list(&cli.server, tls.as_ref()).map_err(|e| Usage(format!("--server {}: {e}", cli.server)))?;
     let bearer = Bearer::new(cli.token.as_deref()).map_err(|_| Usage("the token holds invalid characters".into()))?;
     // A whole map of a big mission is larger than gRPC's default 4 MiB.
     Ok(MissionsClient::with_interceptor(channel, bearer)

@@ -138,6 +138,8 @@ impl tonic::service::Interceptor for Bearer {
 
 /// How the project's clients reach an executive: plaintext or TLS, with the
 /// CA to trust and, for mutual TLS, the client's own certificate.
+pub mod replicas;
+
 pub mod client {
     use std::time::Duration;
 

@@ -34,6 +34,15 @@ pub enum Error {
     /// Too much work is waiting: refused at once, to be retried after a pause.
     #[error("{0}")]
     Overloaded(String),
+    /// Another replica acts for the mission (replicas sharing a database):
+    /// the client retries there, or, without an address, anywhere shortly.
+    #[error("{message}")]
+    Elsewhere {
+        /// What happened, for the client.
+        message: String,
+        /// Where the replica that holds the mission is reached, if known.
+        owner: Option<String>,
+    },
     /// The executive is shutting down.
     #[error("the executive is shutting down; retry against its successor")]
     ShuttingDown,
@@ -76,10 +85,16 @@ impl From<Error> for tonic::Status {
             Error::PermissionDenied(m) => Status::permission_denied(m),
             Error::ShuttingDown => Status::unavailable(e.to_string()),
             Error::Overloaded(m) => overloaded(m),
+            Error::Elsewhere { message, owner } => elsewhere(message, owner.as_deref()),
             // Internals are logged here, once, and never shown to the client.
             Error::Store(cause) => {
                 tracing::error!(error = %cause, "store failure");
                 match cause.kind() {
+                    FailureKind::Fenced => elsewhere(
+                        "another replica has taken this mission over: nothing of this request was written; retry"
+                            .to_owned(),
+                        None,
+                    ),
                     FailureKind::Full => Status::resource_exhausted(
                         "the executive's disk is full: nothing of this request was written; reads still work, \
                          and writes will once space is freed (retry later)",
@@ -104,6 +119,19 @@ impl From<Error> for tonic::Status {
 /// How long a client should wait before retrying a call refused to shed
 /// load, in the header gRPC's own retry machinery reads.
 pub const RETRY_PUSHBACK_MS: u64 = 100;
+
+/// UNAVAILABLE with the owner's address (in
+/// [`exploration_proto::replicas::OWNER_METADATA`], which the project's
+/// clients follow) and a retry hint.
+pub fn elsewhere(message: String, owner: Option<&str>) -> tonic::Status {
+    let mut status = tonic::Status::unavailable(message);
+    let metadata = status.metadata_mut();
+    metadata.insert("grpc-retry-pushback-ms", RETRY_PUSHBACK_MS.into());
+    if let Some(owner) = owner.and_then(|o| o.parse().ok()) {
+        metadata.insert(exploration_proto::replicas::OWNER_METADATA, owner);
+    }
+    status
+}
 
 /// RESOURCE_EXHAUSTED with a retry hint (`grpc-retry-pushback-ms`).
 pub fn overloaded(message: String) -> tonic::Status {

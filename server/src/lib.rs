@@ -38,10 +38,10 @@ pub mod validate;
 
 pub use clock::{Clock, ManualClock};
 pub use connections::ConnectionLimits;
-pub use executive::{Executive, ExecutiveSettings};
+pub use executive::{Executive, ExecutiveSettings, ReplicaSettings};
 pub use store::compact::Compaction;
 pub use store::sqlite::{Durability, SqliteStore};
-pub use store::{Location, PostgresStore};
+pub use store::{Claimant, Location, PostgresStore};
 
 /// How to run an executive.
 #[derive(Debug, Clone)]
@@ -131,6 +131,9 @@ pub enum ServeError {
     /// The HTTP listener cannot serve HTTPS with the TLS settings.
     #[error(transparent)]
     Https(#[from] http::HttpsError),
+    /// Replicas asked for on a database that one executive keeps.
+    #[error("replicas share a PostgreSQL database (--db postgres://...); the SQLite file {0} is kept by one executive")]
+    ReplicasNeedPostgres(String),
 }
 
 /// Expires leases and detects stalls until `stop`: every
@@ -214,8 +217,12 @@ pub async fn run_with(
         (Some(listener), None) => Some(HttpListener::Plain(listener)),
         (None, _) => None,
     };
+    if let (Some(_), Location::Sqlite(path)) = (&config.executive.replica, &config.db) {
+        return Err(ServeError::ReplicasNeedPostgres(path.display().to_string()));
+    }
     let metrics = Arc::new(metrics::Metrics::new());
-    let store = config.db.open(config.durability, Some(Arc::clone(&metrics))).await?;
+    let store =
+        config.db.open(config.durability, config.executive.replica.is_some(), Some(Arc::clone(&metrics))).await?;
     let clock = config.executive.clock.clone();
     let executive = match Executive::open(Arc::clone(&store), config.executive, Arc::clone(&metrics)).await {
         Ok(executive) => Arc::new(executive),
@@ -225,6 +232,7 @@ pub async fn run_with(
         }
     };
     let sweeper = tokio::spawn(sweep_until(executive.clone(), clock, streams_end.clone()));
+    let lease_keeper = tokio::spawn(executive::keep_leases_until(executive.clone(), streams_end.clone()));
     let compactor = tokio::spawn(store::compact::run(
         Arc::clone(&store),
         config.compaction,
@@ -311,6 +319,9 @@ pub async fn run_with(
     if let Err(e) = sweeper.await {
         tracing::error!(error = %e, "lease sweeper failed");
     }
+    if let Err(e) = lease_keeper.await {
+        tracing::error!(error = %e, "the mission lease keeper failed");
+    }
     if let Err(e) = compactor.await {
         tracing::error!(error = %e, "the patch log compactor failed");
     }
@@ -322,6 +333,8 @@ pub async fn run_with(
         }
     }
     executive.close().await;
+    // Everything it wrote is durable: the other replicas may take its missions now.
+    executive.release_leases().await;
     store.close().await;
     served?;
     tracing::info!("executive stopped");

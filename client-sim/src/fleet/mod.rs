@@ -36,9 +36,9 @@ use exploration_proto::v1::missions_client::MissionsClient;
 
 mod steps;
 
+use exploration_proto::replicas::Replicas;
 use steps::{Exploration, tick};
 use tonic::service::interceptor::InterceptedService;
-use tonic::transport::Channel;
 
 use crate::generate::{Generator, generate};
 use crate::robot::{Bidding, Occupancy, RobotError, RobotModel, SimRobot, TeamMap};
@@ -567,7 +567,7 @@ where
 
 /// The executive's mission API as the fleet holds it: a lazy channel with
 /// the fleet's bearer token.
-type Missions = MissionsClient<InterceptedService<Channel, exploration_proto::Bearer>>;
+type Missions = MissionsClient<InterceptedService<Replicas, exploration_proto::Bearer>>;
 
 /// One run against a running executive: create the mission, bring the team
 /// up, step it until the map is known or the run cannot go on, and measure.
@@ -615,12 +615,13 @@ async fn run_against(
 }
 
 fn missions_client(config: &RunConfig, url: &str, token: Option<&str>) -> Result<Missions, SimError> {
-    if let Some(warning) = exploration_proto::client::plaintext_token_warning(url, token) {
-        tracing::warn!("{warning}");
+    for replica in url.split(',') {
+        if let Some(warning) = exploration_proto::client::plaintext_token_warning(replica.trim(), token) {
+            tracing::warn!("{warning}");
+        }
     }
-    let channel = exploration_proto::client::endpoint(url, config.tls.as_ref())
-        .map_err(|e| SimError::Executive(format!("bad executive URL or TLS settings for {url}: {e}")))?
-        .connect_lazy();
+    let channel = Replicas::from_list(url, config.tls.as_ref())
+        .map_err(|e| SimError::Executive(format!("bad executive URL or TLS settings for {url}: {e}")))?;
     let bearer = exploration_proto::Bearer::new(token)
         .map_err(|e| SimError::Executive(format!("the token is not valid metadata: {e}")))?;
     Ok(MissionsClient::with_interceptor(channel, bearer))

@@ -55,10 +55,8 @@ impl SimRobot {
         retry_budget: Duration,
         stop: CancellationToken,
     ) -> Result<Self, RobotError> {
-        let channel = exploration_proto::client::endpoint(endpoint, tls)
-            .map_err(|e| RobotError::Rpc { what: "connect", status: Status::invalid_argument(e.to_string()) })?
-            .tcp_nodelay(true)
-            .connect_lazy();
+        let channel = exploration_proto::replicas::Replicas::from_list(endpoint, tls)
+            .map_err(|e| RobotError::Rpc { what: "connect", status: Status::invalid_argument(e.to_string()) })?;
         let bearer = |token: Option<&str>| {
             Bearer::new(token).map_err(|e| RobotError::Rpc {
                 what: "connect",

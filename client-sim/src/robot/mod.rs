@@ -24,9 +24,9 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
+use exploration_proto::replicas::Replicas;
 use tokio::sync::watch;
 use tonic::Status;
-use tonic::transport::Channel;
 
 use exploration::cost::{TraversalMap, shortest_path};
 use exploration::grid::{Cell, CellClass, CellRect, OccupancyGrid};
@@ -94,7 +94,7 @@ struct Task {
 }
 
 /// A fleet client that sends a bearer token.
-type Client = FleetClient<tonic::service::interceptor::InterceptedService<Channel, Bearer>>;
+type Client = FleetClient<tonic::service::interceptor::InterceptedService<Replicas, Bearer>>;
 
 /// How a simulated robot misbehaves (failure injection).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

@@ -9,7 +9,9 @@ use tracing_subscriber::EnvFilter;
 
 use std::time::Duration;
 
-use coordinator::{Compaction, Config, ConnectionLimits, Durability, ExecutiveSettings, Location, TlsConfig};
+use coordinator::{
+    Claimant, Compaction, Config, ConnectionLimits, Durability, ExecutiveSettings, Location, ReplicaSettings, TlsConfig,
+};
 
 /// Planning allocates a cost map per robot (megabytes each) and drops it
 /// when the plan is made; the system allocator hands such blocks back to
@@ -86,6 +88,60 @@ struct Args {
     /// Log format.
     #[arg(long, env = "COORDINATOR_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     log_format: LogFormat,
+    /// Run as one of several replicas sharing the PostgreSQL database of
+    /// --db, under this name (unique among them; a pod's name, say). Each
+    /// mission is then held by one replica at a time, through a lease.
+    #[arg(long, env = "COORDINATOR_REPLICA_ID")]
+    replica_id: Option<String>,
+    /// The URL clients reach this replica at, which the others give to the
+    /// clients of the missions it holds (default: http(s)://--listen,
+    /// unless it listens on every address).
+    #[arg(long, env = "COORDINATOR_ADVERTISE", requires = "replica_id")]
+    advertise: Option<String>,
+    /// Seconds a replica's claim on a mission lasts unless renewed (it
+    /// renews every third of it): about how long a dead replica's missions
+    /// wait for another.
+    #[arg(long, env = "COORDINATOR_LEASE_PERIOD", default_value_t = 5.0)]
+    lease_period: f64,
+    /// Seconds after a lease ran out before another replica may claim the
+    /// mission (room for clocks that disagree a little).
+    #[arg(long, env = "COORDINATOR_LEASE_GRACE", default_value_t = 1.0)]
+    lease_grace: f64,
+}
+
+/// The replica settings the flags give, checked.
+fn replica_settings(args: &Args, tls: bool) -> anyhow::Result<Option<ReplicaSettings>> {
+    let Some(id) = &args.replica_id else { return Ok(None) };
+    anyhow::ensure!(
+        !id.is_empty() && id.len() <= 128 && id.bytes().all(|b| b.is_ascii_graphic()),
+        "--replica-id must be 1 to 128 printable ASCII characters without spaces"
+    );
+    for (flag, seconds, min) in [("--lease-period", args.lease_period, 0.3), ("--lease-grace", args.lease_grace, 0.0)] {
+        anyhow::ensure!(seconds.is_finite() && (min..=600.0).contains(&seconds), "{flag} must be {min} to 600 seconds");
+    }
+    let advertise = match &args.advertise {
+        Some(url) => url.clone(),
+        None => {
+            anyhow::ensure!(
+                !args.listen.ip().is_unspecified(),
+                "--advertise is needed when --listen is {} (every address): the URL other machines reach this \
+                 replica at",
+                args.listen
+            );
+            format!("{}://{}", if tls { "https" } else { "http" }, args.listen)
+        }
+    };
+    anyhow::ensure!(
+        (advertise.starts_with("http://") || advertise.starts_with("https://"))
+            && advertise.len() <= 512
+            && advertise.bytes().all(|b| b.is_ascii_graphic()),
+        "--advertise must be an http:// or https:// URL"
+    );
+    Ok(Some(ReplicaSettings {
+        claimant: Claimant { id: id.clone(), address: advertise },
+        lease: Duration::from_secs_f64(args.lease_period),
+        grace: Duration::from_secs_f64(args.lease_grace),
+    }))
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -111,6 +167,8 @@ async fn main() -> anyhow::Result<()> {
     let listener = tokio::net::TcpListener::bind(args.listen)
         .await
         .with_context(|| format!("cannot listen on {}", args.listen))?;
+    let tls = args.tls_cert.is_some();
+    let replica = replica_settings(&args, tls)?;
     let mut config = Config::new(args.db);
     config.operator_token = args.operator_token;
     config.operator_tokens_file = args.operator_tokens;
@@ -146,6 +204,7 @@ async fn main() -> anyhow::Result<()> {
     }
     let defaults = ExecutiveSettings::default();
     config.executive = ExecutiveSettings {
+        replica,
         planner_threads: args.planner_threads.unwrap_or(defaults.planner_threads).max(1),
         background_planner_threads: args
             .background_planner_threads

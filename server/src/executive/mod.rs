@@ -27,8 +27,11 @@ use crate::store::{Changeset, Store, TaskFilter};
 use exploration::policy::PolicyConfig;
 
 mod mission;
+mod ownership;
 mod planner;
 mod writer;
+
+pub use ownership::{ReplicaSettings, keep_leases_until};
 
 use mission::Mission;
 use planner::{MissionCell, Planner};
@@ -62,6 +65,9 @@ pub struct ExecutiveSettings {
     /// change, distance travelled, time) at most this often; a demand (a
     /// robot arrived or failed, joined, ...) is planned at once.
     pub min_plan_interval: std::time::Duration,
+    /// Replicas sharing the database: this one's name, address and leases;
+    /// `None`: the only executive on its database, holding every mission.
+    pub replica: Option<ReplicaSettings>,
 }
 
 impl Default for ExecutiveSettings {
@@ -75,6 +81,7 @@ impl Default for ExecutiveSettings {
             clock: Clock::default(),
             max_queued_per_mission: 64,
             min_plan_interval: std::time::Duration::from_secs(1),
+            replica: None,
         }
     }
 }
@@ -135,6 +142,12 @@ impl Usage {
     }
 
     /// Gives back a reservation whose mission was not made.
+    /// A mission loaded from the store, whatever the limits.
+    fn add(&self, cells: u64) {
+        let mut usage = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        *usage = (usage.0 + 1, usage.1 + cells);
+    }
+
     fn release(&self, cells: u64) {
         let mut usage = self.0.lock().unwrap_or_else(|e| e.into_inner());
         *usage = (usage.0.saturating_sub(1), usage.1.saturating_sub(cells));
@@ -159,6 +172,13 @@ pub struct MissionSummary {
     pub forbidden: Vec<Region>,
     /// Whether it was given its rooms and corridors.
     pub given_segmentation: bool,
+}
+
+impl MissionSummary {
+    /// A mission as stored, without the live figures of the replica that holds it.
+    fn stored(record: MissionRecord) -> Self {
+        Self { record, robots: 0, known_cells: 0, frontier_cells: 0, forbidden: Vec::new(), given_segmentation: false }
+    }
 }
 
 /// A robot with its current target.
@@ -227,30 +247,34 @@ pub struct Executive {
     usage: Usage,
     /// Each robot's token hash.
     tokens: RwLock<HashMap<RobotId, String>>,
+    /// The missions held, when replicas share the database.
+    ownership: Option<ownership::Ownership>,
 }
 
 impl Executive {
-    /// Loads every mission from the store, where it was.
+    /// Loads every mission from the store, where it was; as one of several
+    /// replicas ([`ExecutiveSettings::replica`]), only those it claims
+    /// (the lease keeper claims the missions nobody holds).
     pub async fn open(
         store: Arc<dyn Store>,
         settings: ExecutiveSettings,
         metrics: Arc<Metrics>,
     ) -> Result<Self, Error> {
-        let mut missions = BTreeMap::new();
-        let mut robot_missions = HashMap::new();
-        let mut total_cells = 0u64;
         let writer = Writer::new(Arc::clone(&store), settings.clock.clone(), Arc::clone(&metrics));
-        for record in store.missions().await? {
-            let id = record.id;
-            total_cells += record.spec.frame.len() as u64;
-            let mission = writer.load(record).await?;
-            for robot in mission.robots() {
-                robot_missions.insert(robot.id, id);
+        let ownership = settings.replica.clone().map(ownership::Ownership::new);
+        // Identities: after the largest given; a replica gives them from
+        // blocks of its own, so that replicas never give the same one.
+        let (next_task_id, next_region_id) = match &ownership {
+            None => (store.max_task_id().await?, store.max_region_id().await?),
+            Some(ownership) => {
+                let block = store.reserve_id_block(&ownership.settings.claimant.id, Timestamp::now()).await?;
+                let first = block
+                    .checked_mul(1 << 32)
+                    .ok_or_else(|| Error::Internal(format!("identity block {block} is past the last one (2^31)")))?;
+                (first, first)
             }
-            missions.insert(id, Arc::new(MissionCell::new(mission)));
-        }
-        let missions_count = missions.len();
-        let next_task_id = Arc::new(AtomicU64::new(store.max_task_id().await?));
+        };
+        let next_task_id = Arc::new(AtomicU64::new(next_task_id));
         let planner = Planner::new(
             writer.clone(),
             settings.clock.clone(),
@@ -260,46 +284,80 @@ impl Executive {
             Arc::clone(&metrics),
             settings.min_plan_interval,
         );
-        for cell in missions.values() {
-            planner.start(Arc::clone(cell));
-            // Missions planned off the request path replan now, not at the next request.
-            let mut mission = cell.lock().await;
-            if !mission.record().spec.lockstep {
-                planner.after_change(cell, &mut mission).await;
-            }
-        }
-        let next_region_id = store.max_region_id().await?;
         let tokens = store.robot_tokens().await?.into_iter().collect();
-        Ok(Self {
-            store,
+        let executive = Self {
+            store: Arc::clone(&store),
             writer,
             settings,
-            missions: RwLock::new(missions),
-            robot_missions: RwLock::new(robot_missions),
+            missions: RwLock::default(),
+            robot_missions: RwLock::default(),
             next_task_id,
             planner,
             metrics,
             next_region_id: AtomicU64::new(next_region_id),
-            usage: Usage::new(missions_count, total_cells),
+            usage: Usage::new(0, 0),
             tokens: RwLock::new(tokens),
-        })
+            ownership,
+        };
+        if executive.ownership.is_none() {
+            for record in store.missions().await? {
+                let cells = record.spec.frame.len() as u64;
+                let mission = executive.writer.load(record).await?;
+                executive.usage.add(cells);
+                executive.start_holding(Arc::new(MissionCell::new(mission))).await;
+            }
+        }
+        Ok(executive)
     }
 
-    fn mission_handle(&self, id: MissionId) -> Result<Arc<MissionCell>, Error> {
-        let missions = self.missions.read().unwrap_or_else(|e| e.into_inner());
-        missions
-            .get(&id)
-            .cloned()
-            .ok_or_else(|| Error::NotFound(format!("mission {id} does not exist; ListMissions shows the missions")))
+    /// Starts acting for a mission: its robots are found through it, its
+    /// planner runs, and a mission planned off the request path replans
+    /// now, not at the next request.
+    async fn start_holding(&self, cell: Arc<MissionCell>) {
+        let mut mission = cell.lock().await;
+        let id = mission.record().id;
+        {
+            let mut index = self.robot_missions.write().unwrap_or_else(|e| e.into_inner());
+            for robot in mission.robots() {
+                index.insert(robot.id, id);
+            }
+        }
+        self.missions.write().unwrap_or_else(|e| e.into_inner()).insert(id, Arc::clone(&cell));
+        self.planner.start(Arc::clone(&cell));
+        if !mission.record().spec.lockstep {
+            self.planner.after_change(&cell, &mut mission).await;
+        }
     }
 
-    fn mission_of_robot(&self, robot: RobotId) -> Result<Arc<MissionCell>, Error> {
+    /// A mission this executive holds.
+    fn held_mission(&self, id: MissionId) -> Option<Arc<MissionCell>> {
+        self.missions.read().unwrap_or_else(|e| e.into_inner()).get(&id).cloned()
+    }
+
+    /// A mission, claimed first (or pointed to) when another replica may hold it.
+    async fn mission_handle(&self, id: MissionId) -> Result<Arc<MissionCell>, Error> {
+        if let Some(cell) = self.held_mission(id) {
+            return Ok(cell);
+        }
+        match &self.ownership {
+            Some(ownership) => self.claim_or_point(ownership, id).await,
+            None => Err(Error::NotFound(format!("mission {id} does not exist; ListMissions shows the missions"))),
+        }
+    }
+
+    /// A robot's mission, claimed first (or pointed to) when another replica may hold it.
+    async fn mission_of_robot(&self, robot: RobotId) -> Result<Arc<MissionCell>, Error> {
         let mission = {
             let index = self.robot_missions.read().unwrap_or_else(|e| e.into_inner());
             index.get(&robot).copied()
         };
+        let mission = match (mission, &self.ownership) {
+            (Some(m), _) => Some(m),
+            (None, Some(_)) => self.store.robot_mission(robot).await?,
+            (None, None) => None,
+        };
         match mission {
-            Some(m) => self.mission_handle(m),
+            Some(m) => self.mission_handle(m).await,
             None => Err(Error::NotFound(format!("robot {robot} does not exist; register it with RegisterRobot first"))),
         }
     }
@@ -344,7 +402,10 @@ impl Executive {
             }
         };
         tracing::info!(mission = record.id, policy = record.spec.policy.name(), cells, "mission created");
-        let mission = Mission::new(record.clone(), self.settings.clock.now());
+        let mut mission = Mission::new(record.clone(), self.settings.clock.now());
+        if let Some(ownership) = &self.ownership {
+            self.claim_new(ownership, &mut mission).await?;
+        }
         let summary = Self::summary(&mission);
         let cell = Arc::new(MissionCell::new(mission));
         self.planner.start(Arc::clone(&cell));
@@ -354,24 +415,35 @@ impl Executive {
 
     /// One mission.
     pub async fn mission(&self, id: MissionId) -> Result<MissionSummary, Error> {
-        let handle = self.mission_handle(id)?;
+        let handle = self.mission_handle(id).await?;
         let mission = handle.lock().await;
         Ok(Self::summary(&mission))
     }
 
     /// Every mission, oldest first.
-    pub async fn missions(&self) -> Vec<MissionSummary> {
+    pub async fn missions(&self) -> Result<Vec<MissionSummary>, Error> {
         let handles: Vec<_> = self.missions.read().unwrap_or_else(|e| e.into_inner()).values().cloned().collect();
         let mut out = Vec::with_capacity(handles.len());
         for handle in handles {
             out.push(Self::summary(&*handle.lock().await));
         }
-        out
+        if self.ownership.is_some() {
+            // Those other replicas hold, as stored: their live figures
+            // (robots, known and frontier cells) are their holders' to give.
+            let held: std::collections::BTreeSet<MissionId> = out.iter().map(|m| m.record.id).collect();
+            for record in self.store.missions().await? {
+                if !held.contains(&record.id) {
+                    out.push(MissionSummary::stored(record));
+                }
+            }
+            out.sort_by_key(|m| m.record.id);
+        }
+        Ok(out)
     }
 
     /// The robot of that name in a mission, if there is one.
     pub async fn robot_named(&self, mission_id: MissionId, name: &str) -> Result<Option<RobotId>, Error> {
-        let handle = self.mission_handle(mission_id)?;
+        let handle = self.mission_handle(mission_id).await?;
         let mission = handle.lock().await;
         Ok(mission.robot_by_name(name).map(|r| r.id))
     }
@@ -383,7 +455,7 @@ impl Executive {
         mission_id: MissionId,
         spec: RobotSpec,
     ) -> Result<(RobotRecord, String, bool), Error> {
-        let handle = self.mission_handle(mission_id)?;
+        let handle = self.mission_handle(mission_id).await?;
         let mut mission = handle.lock().await;
         if let Some(existing) = mission.robot_by_name(&spec.name) {
             let mut resumed = existing.clone();
@@ -422,7 +494,10 @@ impl Executive {
         // The token names the robot, whose identity the store gives inside
         // the transaction that stores the token's hash.
         let secret = crate::auth::RobotSecret::new()?;
-        let record = self.store.create_robot(mission_id, &spec, &|id| secret.token_hash(id), Timestamp::now()).await?;
+        let record = self
+            .store
+            .create_robot(mission_id, &spec, &|id| secret.token_hash(id), Timestamp::now(), mission.fence())
+            .await?;
         let token = secret.token(record.id);
         self.tokens.write().unwrap_or_else(|e| e.into_inner()).insert(record.id, secret.token_hash(record.id));
         tracing::info!(mission = mission_id, robot = record.id, name = %record.name, "robot registered");
@@ -433,7 +508,7 @@ impl Executive {
 
     /// Applies a robot's report, then replans if it asked for it.
     pub async fn heartbeat(&self, robot_id: RobotId, heartbeat: Heartbeat) -> Result<Assignment, Error> {
-        let handle = self.mission_of_robot(robot_id)?;
+        let handle = self.mission_of_robot(robot_id).await?;
         let mut mission = self.lock_for_request(&handle).await?;
         let peers = heartbeat.peers.clone();
         let changes = mission.prepare_heartbeat(robot_id, heartbeat, Timestamp::now())?;
@@ -463,7 +538,7 @@ impl Executive {
 
     /// Applies a robot's map update exactly once, then replans if due.
     pub async fn update_map(&self, robot_id: RobotId, update: MapUpdate) -> Result<MapUpdateOutcome, Error> {
-        let handle = self.mission_of_robot(robot_id)?;
+        let handle = self.mission_of_robot(robot_id).await?;
         let mut mission = self.lock_for_request(&handle).await?;
         let seq = update.seq;
         let peers = update.peers.clone();
@@ -484,7 +559,7 @@ impl Executive {
 
     /// Replaces a robot's bids; the `simmons` policy replans on them.
     pub async fn submit_bids(&self, robot_id: RobotId, bids: Vec<Bid>) -> Result<(usize, Assignment), Error> {
-        let handle = self.mission_of_robot(robot_id)?;
+        let handle = self.mission_of_robot(robot_id).await?;
         let mut mission = self.lock_for_request(&handle).await?;
         mission.check_bids(robot_id, &bids)?;
         let changes =
@@ -505,7 +580,7 @@ impl Executive {
         actor: &str,
         reason: &str,
     ) -> Result<MissionSummary, Error> {
-        let handle = self.mission_handle(mission_id)?;
+        let handle = self.mission_handle(mission_id).await?;
         let mut mission = handle.lock().await;
         let changes = mission.prepare_policy(policy, actor, reason, Timestamp::now());
         self.commit(&mut mission, changes).await?;
@@ -516,39 +591,39 @@ impl Executive {
 
     /// A mission's latest `limit` events, newest first.
     pub async fn latest_events(&self, mission_id: MissionId, limit: u32) -> Result<Vec<MissionEvent>, Error> {
-        self.mission_handle(mission_id)?;
+        self.mission_handle(mission_id).await?;
         Ok(self.store.latest_events(mission_id, limit).await?)
     }
 
     /// A mission's first `limit` events after `after_id` (0: from the start), oldest first.
     pub async fn events(&self, mission_id: MissionId, after_id: u64, limit: u32) -> Result<Vec<MissionEvent>, Error> {
-        self.mission_handle(mission_id)?;
+        self.mission_handle(mission_id).await?;
         Ok(self.store.events(mission_id, after_id, limit).await?)
     }
 
     /// A mission's latest segmentation, if one was computed.
     pub async fn segmentation(&self, mission_id: MissionId) -> Result<Option<StoredSegmentation>, Error> {
-        self.mission_handle(mission_id)?;
+        self.mission_handle(mission_id).await?;
         Ok(self.store.segmentation(mission_id).await?)
     }
 
     /// A robot's current assignment.
     pub async fn assignment(&self, robot_id: RobotId) -> Result<Assignment, Error> {
-        let handle = self.mission_of_robot(robot_id)?;
+        let handle = self.mission_of_robot(robot_id).await?;
         let mission = handle.lock().await;
         mission.assignment_told(robot_id)
     }
 
     /// A receiver of a robot's assignments: holds the current one, then sees every change.
     pub async fn watch(&self, robot_id: RobotId) -> Result<watch::Receiver<Assignment>, Error> {
-        let handle = self.mission_of_robot(robot_id)?;
+        let handle = self.mission_of_robot(robot_id).await?;
         let mission = handle.lock().await;
         mission.watch(robot_id)
     }
 
     /// A mission's robots with their targets.
     pub async fn robots(&self, mission_id: MissionId) -> Result<Vec<RobotSummary>, Error> {
-        let handle = self.mission_handle(mission_id)?;
+        let handle = self.mission_handle(mission_id).await?;
         let mission = handle.lock().await;
         Ok(Self::robot_summaries(&mission))
     }
@@ -567,7 +642,7 @@ impl Executive {
 
     /// Tasks with their transitions, newest first.
     pub async fn tasks(&self, filter: TaskFilter) -> Result<Vec<TaskRecord>, Error> {
-        let handle = self.mission_handle(filter.mission_id)?;
+        let handle = self.mission_handle(filter.mission_id).await?;
         if let Some(robot) = filter.robot_id {
             let mission = handle.lock().await;
             mission.robot(robot).map_err(|_| {
@@ -579,7 +654,7 @@ impl Executive {
 
     /// A copy of a mission's fused map.
     pub async fn map(&self, mission_id: MissionId) -> Result<MapView, Error> {
-        let handle = self.mission_handle(mission_id)?;
+        let handle = self.mission_handle(mission_id).await?;
         let mission = handle.lock().await;
         let frame = mission.record().spec.frame;
         Ok(MapView {
@@ -593,7 +668,7 @@ impl Executive {
     /// (all of them without one), copied under the mission's lock at a
     /// cost proportional to what changed.
     pub async fn map_changes(&self, mission_id: MissionId, since: Option<u64>) -> Result<MapChanges, Error> {
-        let handle = self.mission_handle(mission_id)?;
+        let handle = self.mission_handle(mission_id).await?;
         let mission = handle.lock().await;
         let grid = mission.grid();
         let frame = *grid.frame();
@@ -627,7 +702,7 @@ impl Executive {
         action: Override,
         note: OperatorNote,
     ) -> Result<RobotSummary, Error> {
-        let handle = self.mission_of_robot(robot_id)?;
+        let handle = self.mission_of_robot(robot_id).await?;
         let mut mission = handle.lock().await;
         let changes = mission.prepare_override(robot_id, action, &note, Timestamp::now(), &self.next_task_id)?;
         self.commit(&mut mission, changes).await?;
@@ -649,7 +724,7 @@ impl Executive {
         pause: bool,
         note: OperatorNote,
     ) -> Result<MissionSummary, Error> {
-        let handle = self.mission_handle(mission_id)?;
+        let handle = self.mission_handle(mission_id).await?;
         let mut mission = handle.lock().await;
         let changes = mission.prepare_pause(pause, &note, Timestamp::now())?;
         self.commit(&mut mission, changes).await?;
@@ -666,7 +741,7 @@ impl Executive {
         max: Point2,
         note: OperatorNote,
     ) -> Result<Region, Error> {
-        let handle = self.mission_handle(mission_id)?;
+        let handle = self.mission_handle(mission_id).await?;
         let mut mission = handle.lock().await;
         // Reserved atomically: calls on other missions run at the same time.
         // A refused or failed call leaves a gap, never a repeat.
@@ -687,7 +762,7 @@ impl Executive {
         label_runs: &[u8],
         note: OperatorNote,
     ) -> Result<MissionSummary, Error> {
-        let handle = self.mission_handle(mission_id)?;
+        let handle = self.mission_handle(mission_id).await?;
         let mut mission = handle.lock().await;
         let rooms = if label_runs.is_empty() {
             None
@@ -711,7 +786,7 @@ impl Executive {
         region: u64,
         note: OperatorNote,
     ) -> Result<MissionSummary, Error> {
-        let handle = self.mission_handle(mission_id)?;
+        let handle = self.mission_handle(mission_id).await?;
         let mut mission = handle.lock().await;
         let changes = mission.prepare_allow(region, &note, Timestamp::now())?;
         self.commit(&mut mission, changes).await?;
@@ -723,7 +798,7 @@ impl Executive {
     /// A receiver that changes whenever an operator's view of the mission
     /// does.
     pub async fn subscribe(&self, mission_id: MissionId) -> Result<watch::Receiver<u64>, Error> {
-        let handle = self.mission_handle(mission_id)?;
+        let handle = self.mission_handle(mission_id).await?;
         let mission = handle.lock().await;
         Ok(mission.subscribe())
     }

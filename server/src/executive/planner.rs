@@ -42,11 +42,33 @@ pub(crate) struct MissionCell {
     wake: Notify,
     /// Requests waiting for the lock, to bound the work queued per mission.
     queued: AtomicUsize,
+    /// Its grid's cells, counted against the executive's limit.
+    cells: u64,
+    /// Cancelled when this executive no longer acts for the mission
+    /// (another replica took it): its planner stops.
+    retired: tokio_util::sync::CancellationToken,
 }
 
 impl MissionCell {
     pub(crate) fn new(mission: Mission) -> Self {
-        Self { state: Mutex::new(mission), wake: Notify::new(), queued: AtomicUsize::new(0) }
+        let cells = mission.record().spec.frame.len() as u64;
+        Self {
+            state: Mutex::new(mission),
+            wake: Notify::new(),
+            queued: AtomicUsize::new(0),
+            cells,
+            retired: tokio_util::sync::CancellationToken::new(),
+        }
+    }
+
+    /// Its grid's cells.
+    pub(crate) fn cells(&self) -> u64 {
+        self.cells
+    }
+
+    /// This executive no longer acts for the mission.
+    pub(crate) fn retire(&self) {
+        self.retired.cancel();
     }
 
     /// The mission, for reading or for work that is not a robot's request.
@@ -176,6 +198,7 @@ impl Planner {
             loop {
                 tokio::select! {
                     () = planner.stop.cancelled() => return,
+                    () = cell.retired.cancelled() => return,
                     () = cell.wake.notified() => {}
                 }
                 planner.plan_off_path(&cell).await;
@@ -334,7 +357,7 @@ mod tests {
                 Capabilities { sensor_range_m: 1.0, field_of_view_rad: 6.0, speed_mps: 0.5, footprint_radius_m: 0.0 };
             let pose = Pose { position: Point2::new(x, 0.5), heading: 0.0 };
             let spec = RobotSpec { name: name.into(), capabilities, pose };
-            robots.push(store.create_robot(record.id, &spec, &|_| "0".repeat(64), Timestamp(1)).await.unwrap());
+            robots.push(store.create_robot(record.id, &spec, &|_| "0".repeat(64), Timestamp(1), None).await.unwrap());
         }
         let now = tokio::time::Instant::now();
         let mut mission = Mission::new(record, now);

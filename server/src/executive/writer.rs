@@ -87,7 +87,8 @@ impl Writer {
         Ok(queued)
     }
 
-    async fn queue(&self, mission: &mut Mission, changes: Changeset) -> Result<Queued, Error> {
+    async fn queue(&self, mission: &mut Mission, mut changes: Changeset) -> Result<Queued, Error> {
+        changes.fence = mission.fence();
         let generation = mission.generation();
         let asked = Instant::now();
         let submitted = self.store.submit(changes, mission.last_commit()).await?;

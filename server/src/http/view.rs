@@ -76,8 +76,10 @@ impl FromRequestParts<Shared> for Authenticated {
 
 /// `GET /api/missions`: every mission with its counters.
 pub(super) async fn missions(State(state): State<Shared>, _caller: Authenticated) -> Response {
-    let missions: Vec<MissionJson> = state.executive.missions().await.iter().map(MissionJson::from).collect();
-    json(&missions)
+    match state.executive.missions().await {
+        Ok(missions) => json(&missions.iter().map(MissionJson::from).collect::<Vec<_>>()),
+        Err(e) => error_response(e),
+    }
 }
 
 /// `GET /api/missions/{id}/live`: the mission as server-sent events.
@@ -430,7 +432,7 @@ fn error_response(error: Error) -> Response {
         Error::ResourceExhausted(_) => StatusCode::TOO_MANY_REQUESTS,
         Error::Unauthenticated(_) => StatusCode::UNAUTHORIZED,
         Error::PermissionDenied(_) => StatusCode::FORBIDDEN,
-        Error::Overloaded(_) | Error::ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
+        Error::Overloaded(_) | Error::ShuttingDown | Error::Elsewhere { .. } => StatusCode::SERVICE_UNAVAILABLE,
         Error::Store(_) | Error::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
     };
     let body = serde_json::json!({ "error": error.to_string() }).to_string();

@@ -144,7 +144,7 @@ impl Missions for ExplorationService {
         request: Request<pb::ListMissionsRequest>,
     ) -> Result<Response<pb::ListMissionsResponse>, Status> {
         self.caller(&request)?;
-        let missions = self.executive.missions().await;
+        let missions = self.executive.missions().await?;
         Ok(Response::new(pb::ListMissionsResponse { missions: missions.iter().map(Into::into).collect() }))
     }
 

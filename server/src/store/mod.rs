@@ -16,8 +16,10 @@ use crate::domain::{
 use exploration::fusion::{MapFusion, Patch};
 use exploration::grid::{Cell, GridFrame};
 use exploration::policy::PolicyConfig;
+pub use lease::{Claimant, Fence, Lease};
 
 pub mod compact;
+pub mod lease;
 pub mod lock;
 pub mod postgres;
 pub mod snapshot;
@@ -50,15 +52,18 @@ impl Location {
         Self::Sqlite(path.into())
     }
 
-    /// Opens the store, with its commit latency counted in `metrics`.
+    /// Opens the store, with its commit latency counted in `metrics`: for
+    /// this executive alone, or `shared` with other replicas (PostgreSQL;
+    /// see [`lease`]).
     pub async fn open(
         &self,
         durability: sqlite::Durability,
+        shared: bool,
         metrics: Option<std::sync::Arc<crate::metrics::Metrics>>,
     ) -> Result<std::sync::Arc<dyn Store>, StoreError> {
         Ok(match self {
             Self::Sqlite(path) => std::sync::Arc::new(SqliteStore::open_measured(path, durability, metrics).await?),
-            Self::Postgres(url) => std::sync::Arc::new(PostgresStore::open(url, metrics).await?),
+            Self::Postgres(url) => std::sync::Arc::new(PostgresStore::open(url, shared, metrics).await?),
         })
     }
 }
@@ -137,6 +142,13 @@ pub enum StoreError {
         /// Why.
         source: std::io::Error,
     },
+    /// Not written: another replica has claimed the mission since this one
+    /// did (see [`lease`]).
+    #[error("mission {mission_id} is no longer this replica's: another one claimed it")]
+    Fenced {
+        /// The mission.
+        mission_id: MissionId,
+    },
     /// Not written because a changeset it follows was not (see [`Store::submit`]).
     #[error("not written: a changeset it follows failed ({cause})")]
     Abandoned {
@@ -156,6 +168,9 @@ pub enum FailureKind {
     /// A passing condition (the file is busy, an I/O error): nothing was
     /// written; retrying later may succeed.
     Transient,
+    /// Another replica acts for the mission now: nothing was written, and
+    /// this replica must give the mission up.
+    Fenced,
     /// Anything else: a bug, a corrupt file.
     Internal,
 }
@@ -165,6 +180,9 @@ impl StoreError {
     pub fn kind(&self) -> FailureKind {
         if let Self::Abandoned { kind, .. } = self {
             return *kind;
+        }
+        if let Self::Fenced { .. } = self {
+            return FailureKind::Fenced;
         }
         let Self::Database(sqlx::Error::Database(e)) = self else {
             return match self {
@@ -362,6 +380,10 @@ pub struct Changeset {
     pub robot_tokens: Vec<(RobotId, String)>,
     /// A robot's bids, replacing its earlier ones.
     pub bids: Option<(RobotId, Vec<Bid>)>,
+    /// The lease the writer holds the mission by, when replicas share the
+    /// database: the changeset is written only if the lease still carries
+    /// its token (see [`lease`]).
+    pub fence: Option<Fence>,
     /// A mission's map folded further: replaces its snapshot, whose
     /// patches are then no longer read (see `forget_folded`).
     pub snapshot: Option<MapSnapshot>,
@@ -374,7 +396,8 @@ pub struct Changeset {
 }
 
 impl Changeset {
-    /// Whether there is nothing to write.
+    /// Whether there is nothing to write (a `fence` alone writes nothing:
+    /// it is a condition on the rest).
     pub fn is_empty(&self) -> bool {
         self.mission.is_none()
             && self.robots.is_empty()
@@ -427,15 +450,61 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// Every mission, oldest first.
     async fn missions(&self) -> Result<Vec<MissionRecord>, StoreError>;
 
+    /// One mission, if it exists.
+    async fn mission(&self, id: MissionId) -> Result<Option<MissionRecord>, StoreError>;
+
     /// Registers a robot, with the hash of a token that names its new
-    /// identity (`token_hash` is given that identity), in one transaction.
+    /// identity (`token_hash` is given that identity), in one transaction;
+    /// with `fence`, only while the writer still holds the mission.
     async fn create_robot(
         &self,
         mission_id: MissionId,
         spec: &RobotSpec,
         token_hash: &(dyn Fn(RobotId) -> String + Send + Sync),
         now: Timestamp,
+        fence: Option<Fence>,
     ) -> Result<RobotRecord, StoreError>;
+
+    /// The mission a robot belongs to, if the robot exists.
+    async fn robot_mission(&self, robot_id: RobotId) -> Result<Option<MissionId>, StoreError>;
+
+    /// A mission's lease, if it was ever claimed.
+    async fn lease(&self, mission_id: MissionId) -> Result<Option<Lease>, StoreError>;
+
+    /// Claims a mission for `claimant` until `now + period`, with the next
+    /// fencing token: if nobody ever claimed it, if its lease ran out more
+    /// than `grace` before `now`, or if `claimant` held it (a replica that
+    /// restarted). `None` when another replica holds it.
+    async fn claim(
+        &self,
+        mission_id: MissionId,
+        claimant: &Claimant,
+        now: Timestamp,
+        period: std::time::Duration,
+        grace: std::time::Duration,
+    ) -> Result<Option<Lease>, StoreError>;
+
+    /// Renews the leases `held` (each still carrying its token) until
+    /// `now + period`; returns the missions whose lease was renewed: the
+    /// others are lost.
+    async fn renew(
+        &self,
+        held: &[Fence],
+        now: Timestamp,
+        period: std::time::Duration,
+    ) -> Result<Vec<MissionId>, StoreError>;
+
+    /// Ends a lease at once, if it still carries its token (a replica that
+    /// stops hands its missions on without making anyone wait).
+    async fn release(&self, fence: Fence) -> Result<(), StoreError>;
+
+    /// Missions nobody holds: never claimed, or whose lease ran out more
+    /// than `grace` before `now`.
+    async fn unclaimed(&self, now: Timestamp, grace: std::time::Duration) -> Result<Vec<MissionId>, StoreError>;
+
+    /// A new block of identities for `owner` (see `id_blocks`): its number,
+    /// 1 and up.
+    async fn reserve_id_block(&self, owner: &str, now: Timestamp) -> Result<u64, StoreError>;
 
     /// Every robot's token hash (robots registered before tokens have none).
     async fn robot_tokens(&self) -> Result<Vec<(RobotId, String)>, StoreError>;

@@ -12,8 +12,8 @@ use crate::domain::{
 };
 use crate::store::sqlite::Durability;
 use crate::store::{
-    Changeset, FailureKind, Location, LoggedPatch, MapSnapshot, MissionCounters, Store, StoreError, TaskChange,
-    TaskFilter, compact,
+    Changeset, Claimant, FailureKind, Fence, Location, LoggedPatch, MapSnapshot, MissionCounters, Store, StoreError,
+    TaskChange, TaskFilter, compact,
 };
 use exploration::fusion::Patch;
 use exploration::grid::{Cell, CellRect, GridFrame};
@@ -47,7 +47,7 @@ impl TestDb {
     }
 
     pub(crate) async fn try_open(&self) -> Result<Arc<dyn Store>, StoreError> {
-        self.location().open(Durability::Full, None).await
+        self.location().open(Durability::Full, false, None).await
     }
 
     pub(crate) async fn open(&self) -> Arc<dyn Store> {
@@ -81,6 +81,7 @@ on_both_engines!(
     a_group_commit_fails_only_the_bad_changeset,
     what_follows_a_refused_changeset_is_not_written,
     a_folded_patch_log_restores_the_same_map,
+    a_lease_passes_on_only_once_it_ran_out_and_fences_its_old_holder,
 );
 
 pub(crate) const HASH: &str = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
@@ -126,7 +127,7 @@ async fn a_changeset_round_trips(db: TestDb) {
     let mission = store.create_mission(&spec(), Timestamp(1_000)).await.unwrap();
     assert_eq!(mission.spec, spec());
     let mut robot =
-        store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(2_000)).await.unwrap();
+        store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(2_000), None).await.unwrap();
     assert_eq!(robot.state, RobotState::Idle);
     assert_eq!(robot.home, Point2::new(0.5, 0.5));
     assert_eq!(store.robot_tokens().await.unwrap(), vec![(robot.id, HASH.to_owned())]);
@@ -233,6 +234,7 @@ async fn a_changeset_round_trips(db: TestDb) {
                     gain_region: (Point2::new(0.0, 0.0), Point2::new(1.0, 1.0)),
                 }],
             )),
+            fence: None,
             snapshot: None,
             forget_folded: None,
             at: Some(Timestamp(3_000)),
@@ -315,7 +317,8 @@ async fn a_changeset_round_trips(db: TestDb) {
 async fn a_failed_changeset_writes_nothing(db: TestDb) {
     let store = db.open().await;
     let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
-    let robot = store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(1)).await.unwrap();
+    let robot =
+        store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(1), None).await.unwrap();
     let mut moved = robot.clone();
     moved.last_map_seq = 9;
     // A task for a robot that does not exist violates a foreign key.
@@ -444,8 +447,9 @@ async fn a_folded_patch_log_restores_the_same_map(db: TestDb) {
     let frame = mission.spec.frame;
     let mut robots = Vec::new();
     for name in ["r1", "r2", "r3"] {
-        robots
-            .push(store.create_robot(mission.id, &robot_spec(name), &|_| HASH.to_owned(), Timestamp(1)).await.unwrap());
+        robots.push(
+            store.create_robot(mission.id, &robot_spec(name), &|_| HASH.to_owned(), Timestamp(1), None).await.unwrap(),
+        );
     }
     // Overlapping patches whose values change, so that the sums depend on
     // the order they were added in.
@@ -504,4 +508,72 @@ async fn a_folded_patch_log_restores_the_same_map(db: TestDb) {
     let missions = reopened.missions().await.unwrap();
     let restarted = reopened.stored_map(&missions[0], None).await.unwrap();
     assert_eq!(bits(&restarted.fuse(&frame, 3).unwrap()), bits(&fused(&frame, &sent)));
+}
+
+/// A mission's lease goes to one replica at a time; another may claim it
+/// only once it ran out (and the grace passed), with the next fencing
+/// token; from then on the old holder can write nothing for the mission,
+/// however its changeset comes, while changesets of other missions in the
+/// same group are written.
+async fn a_lease_passes_on_only_once_it_ran_out_and_fences_its_old_holder(db: TestDb) {
+    let store = db.open().await;
+    let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
+    let other = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
+    let (a, b) = (
+        Claimant { id: "a".into(), address: "http://a:1".into() },
+        Claimant { id: "b".into(), address: "http://b:1".into() },
+    );
+    let (period, grace) = (Duration::from_secs(5), Duration::from_secs(1));
+    assert_eq!(store.unclaimed(Timestamp(1_000), grace).await.unwrap(), vec![mission.id, other.id]);
+    let first = store.claim(mission.id, &a, Timestamp(1_000), period, grace).await.unwrap().unwrap();
+    assert_eq!((first.owner.as_str(), first.token, first.expires_at), ("a", 1, Timestamp(6_000)));
+    assert_eq!(store.claim(mission.id, &b, Timestamp(6_500), period, grace).await.unwrap(), None, "within the grace");
+    let fence_a = Fence { mission_id: mission.id, token: 1 };
+    assert_eq!(store.renew(&[fence_a], Timestamp(5_000), period).await.unwrap(), vec![mission.id]);
+    assert_eq!(store.claim(mission.id, &b, Timestamp(10_500), period, grace).await.unwrap(), None, "renewed");
+    assert_eq!(store.unclaimed(Timestamp(10_500), grace).await.unwrap(), vec![other.id]);
+    let taken = store.claim(mission.id, &b, Timestamp(11_001), period, grace).await.unwrap().unwrap();
+    assert_eq!((taken.owner.as_str(), taken.address.as_str(), taken.token), ("b", "http://b:1", 2));
+    assert_eq!(store.lease(mission.id).await.unwrap(), Some(taken.clone()));
+
+    // The old holder: its renewal fails, its writes are refused whole.
+    assert_eq!(store.renew(&[fence_a], Timestamp(11_100), period).await.unwrap(), Vec::<MissionId>::new());
+    let fenced =
+        |fence: Fence, detail: &str| Changeset { fence: Some(fence), ..note(fence.mission_id, 2, detail.into()) };
+    let err = store.commit(fenced(fence_a, "stale")).await.unwrap_err();
+    assert!(matches!(err, StoreError::Fenced { mission_id } if mission_id == mission.id), "{err}");
+    assert_eq!(err.kind(), FailureKind::Fenced);
+    let err = store
+        .create_robot(mission.id, &robot_spec("late"), &|_| HASH.to_owned(), Timestamp(2), Some(fence_a))
+        .await
+        .unwrap_err();
+    assert!(matches!(err, StoreError::Fenced { .. }), "{err}");
+    assert!(store.robots(&mission).await.unwrap().is_empty(), "no robot registered by the old holder");
+    // In one group with another mission's changeset: only the stale one fails.
+    let fence_other = Fence {
+        mission_id: other.id,
+        token: store.claim(other.id, &a, Timestamp(11_100), period, grace).await.unwrap().unwrap().token,
+    };
+    let stale = store.submit(fenced(fence_a, "stale again"), None).await.unwrap();
+    let fresh = store.submit(fenced(fence_other, "fresh"), None).await.unwrap();
+    assert!(matches!(stale.durable().await, Err(StoreError::Fenced { .. })));
+    fresh.durable().await.unwrap();
+    // The new holder writes.
+    store.commit(fenced(Fence { mission_id: mission.id, token: 2 }, "new holder")).await.unwrap();
+    let details: Vec<String> = store.events(mission.id, 0, 10).await.unwrap().into_iter().map(|e| e.detail).collect();
+    assert_eq!(details, vec!["new holder".to_owned()]);
+    assert_eq!(store.events(other.id, 0, 10).await.unwrap().len(), 1);
+
+    // A holder that restarts claims its own mission back at once, with a
+    // new token that fences its former self; a released lease is anyone's.
+    let again = store.claim(mission.id, &b, Timestamp(11_200), period, grace).await.unwrap().unwrap();
+    assert_eq!(again.token, 3);
+    store.release(Fence { mission_id: mission.id, token: 3 }).await.unwrap();
+    assert_eq!(store.claim(mission.id, &a, Timestamp(11_300), period, grace).await.unwrap().map(|l| l.token), Some(4));
+    // Identity blocks never repeat.
+    let blocks = [
+        store.reserve_id_block("a", Timestamp(1)).await.unwrap(),
+        store.reserve_id_block("b", Timestamp(1)).await.unwrap(),
+    ];
+    assert!(blocks[0] >= 1 && blocks[1] > blocks[0], "{blocks:?}");
 }

@@ -42,7 +42,7 @@ use crate::domain::{
     Timestamp, Transition,
 };
 use crate::error::Error;
-use crate::store::{Changeset, CommitId, LoggedPatch, MissionCounters, StoredMap, TaskChange};
+use crate::store::{Changeset, CommitId, Fence, LoggedPatch, MissionCounters, StoredMap, TaskChange};
 
 /// How close to its home a robot counts as home, metres.
 const HOME_TOLERANCE_M: f64 = 0.5;
@@ -141,6 +141,9 @@ pub(crate) struct Mission {
     last_commit: Option<CommitId>,
     /// How many times the mission was reloaded after a failed write.
     generation: u64,
+    /// The lease this replica holds the mission by, when replicas share the
+    /// database: every changeset carries it (see [`crate::store::lease`]).
+    fence: Option<Fence>,
 }
 
 impl Mission {
@@ -180,6 +183,7 @@ impl Mission {
             map_log: map_log::MapLog::default(),
             last_commit: None,
             generation: 0,
+            fence: None,
             record,
         };
         for robot in robots {
@@ -208,6 +212,16 @@ impl Mission {
         self.last_commit
     }
 
+    /// The lease this replica holds the mission by, if replicas share the database.
+    pub(crate) fn fence(&self) -> Option<Fence> {
+        self.fence
+    }
+
+    /// This replica claimed the mission with `fence`.
+    pub(crate) fn set_fence(&mut self, fence: Fence) {
+        self.fence = Some(fence);
+    }
+
     /// `id` was queued for the store after every earlier changeset.
     pub(crate) fn set_last_commit(&mut self, id: CommitId) {
         self.last_commit = Some(id);
@@ -232,6 +246,7 @@ impl Mission {
     pub(crate) fn replace_after_failed_write(&mut self, fresh: Mission) {
         let old = std::mem::replace(self, fresh);
         self.generation = old.generation + 1;
+        self.fence = old.fence;
         self.last_commit = None;
         self.map_log = map_log::MapLog::after(old.map_log.version());
         self.pending_replan = Some("the mission was reloaded after a failed write".to_owned());

@@ -3,10 +3,13 @@
 //!
 //! Chosen by a `postgres://` (or `postgresql://`) database URL. Its schema
 //! is `migrations/postgres`, applied at start under sqlx's migration lock.
-//! One executive uses a database at a time, as with SQLite: it holds a
-//! session advisory lock ([`EXECUTIVE_LOCK`]) on a connection of its own
-//! for as long as it runs, which the server releases when that connection
-//! ends, however the executive ended.
+//! One executive uses a database at a time, as with SQLite, unless it is
+//! one of several replicas that share it (which divide the missions through
+//! leases, [`crate::store::lease`]): it holds a session advisory lock
+//! ([`EXECUTIVE_LOCK`]) on a connection of its own for as long as it runs,
+//! which the server releases when that connection ends, however the
+//! executive ended. Replicas take it shared, so that neither a lone
+//! executive joins replicas nor replicas join a lone executive.
 
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
@@ -45,15 +48,20 @@ pub struct PostgresBackend {
 
 impl SqlStore<PostgresBackend> {
     /// Connects to the database at `url` and applies migrations; refused
-    /// while another executive holds it.
-    pub async fn open(url: &str, metrics: Option<Arc<crate::metrics::Metrics>>) -> Result<Self, StoreError> {
+    /// while another executive holds it (alone, or `shared` by replicas
+    /// when this one is not one of them).
+    pub async fn open(
+        url: &str,
+        shared: bool,
+        metrics: Option<Arc<crate::metrics::Metrics>>,
+    ) -> Result<Self, StoreError> {
         let options = PgConnectOptions::from_str(url)?
             .application_name(&holder())
             // A statement that hangs (a lock nobody releases) fails instead.
             .options([("statement_timeout", "30s"), ("lock_timeout", "10s")]);
         let shown = without_password(url);
         let mut lock = options.connect().await?;
-        take_executive_lock(&mut lock, &shown).await?;
+        take_executive_lock(&mut lock, &shown, shared).await?;
         let pool = PgPoolOptions::new()
             .max_connections(8)
             .acquire_timeout(Duration::from_secs(10))
@@ -90,10 +98,10 @@ pub fn without_password(url: &str) -> String {
     }
 }
 
-/// Takes [`EXECUTIVE_LOCK`] on `conn`, or says who holds it.
-async fn take_executive_lock(conn: &mut PgConnection, shown: &str) -> Result<(), StoreError> {
-    let taken: bool =
-        sqlx::query_scalar("SELECT pg_try_advisory_lock($1)").bind(EXECUTIVE_LOCK).fetch_one(&mut *conn).await?;
+/// Takes [`EXECUTIVE_LOCK`] on `conn` (`shared` among replicas), or says who holds it.
+async fn take_executive_lock(conn: &mut PgConnection, shown: &str, shared: bool) -> Result<(), StoreError> {
+    let take = if shared { "SELECT pg_try_advisory_lock_shared($1)" } else { "SELECT pg_try_advisory_lock($1)" };
+    let taken: bool = sqlx::query_scalar(take).bind(EXECUTIVE_LOCK).fetch_one(&mut *conn).await?;
     if taken {
         return Ok(());
     }
@@ -107,9 +115,14 @@ async fn take_executive_lock(conn: &mut PgConnection, shown: &str) -> Result<(),
     .fetch_optional(&mut *conn)
     .await?;
     let holder = holder.filter(|h| !h.is_empty()).unwrap_or_else(|| "an unknown session".to_owned());
+    let (this, other) = if shared {
+        ("this replica", "an executive that is not a replica")
+    } else {
+        ("this executive", "another executive")
+    };
     Err(StoreError::Locked(format!(
-        "the database {shown} is in use by another executive ({holder}; PostgreSQL advisory lock {EXECUTIVE_LOCK}): \
-         stop it, or give this one another database"
+        "the database {shown} is in use by {other} ({holder}; PostgreSQL advisory lock {EXECUTIVE_LOCK}), so \
+         {this} cannot use it: stop the other, or give this one another database"
     )))
 }
 
@@ -194,9 +207,8 @@ impl Drop for PostgresTx {
 impl Transaction for PostgresTx {
     type Row = PgRow;
 
-    async fn execute(&mut self, statement: Statement) -> Result<(), StoreError> {
-        query(statement).execute(&mut *self.conn).await?;
-        Ok(())
+    async fn execute(&mut self, statement: Statement) -> Result<u64, StoreError> {
+        Ok(query(statement).execute(&mut *self.conn).await?.rows_affected())
     }
 
     async fn fetch_all(&mut self, statement: Statement) -> Result<Vec<PgRow>, StoreError> {

@@ -6,6 +6,7 @@
 //! them; [`write`] writes changesets; [`group`] writes them in groups.
 
 mod group;
+mod leases;
 pub(super) mod rows;
 pub mod statement;
 mod write;
@@ -14,10 +15,11 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
 
 use async_trait::async_trait;
 
-use super::{Changeset, CommitId, Store, StoreError, StoredMap, Submitted, TaskFilter};
+use super::{Changeset, Claimant, CommitId, Fence, Lease, Store, StoreError, StoredMap, Submitted, TaskFilter};
 use crate::domain::{
     Bid, BlacklistEntry, MissionEvent, MissionId, MissionRecord, MissionSpec, Region, RobotId, RobotRecord, RobotSpec,
     Rooms, StoredSegmentation, TaskId, TaskKind, TaskRecord, Timestamp, Transition,
@@ -182,12 +184,18 @@ impl<B: Backend> Store for SqlStore<B> {
         rows.iter().map(rows::mission_from_row).collect()
     }
 
+    async fn mission(&self, id: MissionId) -> Result<Option<MissionRecord>, StoreError> {
+        let select = Statement::new("SELECT * FROM missions WHERE id = $1").int(id as i64);
+        self.backend.fetch_optional(select).await?.as_ref().map(rows::mission_from_row).transpose()
+    }
+
     async fn create_robot(
         &self,
         mission_id: MissionId,
         spec: &RobotSpec,
         token_hash: &(dyn Fn(RobotId) -> String + Send + Sync),
         now: Timestamp,
+        fence: Option<Fence>,
     ) -> Result<RobotRecord, StoreError> {
         let frame = self.frame(mission_id).await?.ok_or_else(|| {
             StoreError::Corrupt(format!("robots: a robot of mission {mission_id}, which is not stored"))
@@ -210,11 +218,51 @@ impl<B: Backend> Store for SqlStore<B> {
         .real(spec.pose.heading)
         .int(now.millis());
         let mut tx = self.backend.begin_write().await?;
+        if let Some(fence) = fence {
+            write::check_fence(&mut tx, fence).await?;
+        }
         let robot = rows::robot_from_row(&tx.fetch_one(insert).await?, &frame)?;
         let token = Statement::new("UPDATE robots SET token_sha256 = $1 WHERE id = $2");
         tx.execute(token.text(&token_hash(robot.id)).int(robot.id as i64)).await?;
         tx.commit().await?;
         Ok(robot)
+    }
+
+    async fn robot_mission(&self, robot_id: RobotId) -> Result<Option<MissionId>, StoreError> {
+        let select = Statement::new("SELECT mission_id FROM robots WHERE id = $1").int(robot_id as i64);
+        let row = self.backend.fetch_optional(select).await?;
+        row.map(|row| rows::identity(&row, "robots", "mission_id")).transpose()
+    }
+
+    async fn lease(&self, mission_id: MissionId) -> Result<Option<Lease>, StoreError> {
+        self.read_lease(mission_id).await
+    }
+
+    async fn claim(
+        &self,
+        mission_id: MissionId,
+        claimant: &Claimant,
+        now: Timestamp,
+        period: Duration,
+        grace: Duration,
+    ) -> Result<Option<Lease>, StoreError> {
+        self.claim_lease(mission_id, claimant, now, period, grace).await
+    }
+
+    async fn renew(&self, held: &[Fence], now: Timestamp, period: Duration) -> Result<Vec<MissionId>, StoreError> {
+        self.renew_leases(held, now, period).await
+    }
+
+    async fn release(&self, fence: Fence) -> Result<(), StoreError> {
+        self.release_lease(fence).await
+    }
+
+    async fn unclaimed(&self, now: Timestamp, grace: Duration) -> Result<Vec<MissionId>, StoreError> {
+        self.unclaimed_missions(now, grace).await
+    }
+
+    async fn reserve_id_block(&self, owner: &str, now: Timestamp) -> Result<u64, StoreError> {
+        self.new_id_block(owner, now).await
     }
 
     async fn robot_tokens(&self) -> Result<Vec<(RobotId, String)>, StoreError> {

@@ -14,7 +14,7 @@ use crate::domain::{
     MissionState, Pose, Region, ReplanSettings, RobotId, RobotRecord, RobotState, Rooms, StoredSegmentation, TaskId,
     TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
-use crate::store::{LoggedPatch, MapSnapshot, StoreError};
+use crate::store::{Lease, LoggedPatch, MapSnapshot, StoreError};
 use crate::validate::{self, Invalid};
 use exploration::fusion::Patch;
 use exploration::grid::{Cell, CellRect, GridFrame};
@@ -507,6 +507,23 @@ fn decode_cells(at: &At, stored: Vec<u8>, format: i64, count: u64) -> Result<Vec
         return Err(at.bad(format!("cells holds {} bytes, not 4 per cell of {count} cells", raw.len())));
     }
     Ok(raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+}
+
+/// An identity (1 and up) in column `column` of a row of `table`.
+pub(super) fn identity(row: &impl Columns, table: &str, column: &str) -> Result<u64, StoreError> {
+    At::row(table, row, column)?.id_column(row, column)
+}
+
+/// A mission's lease.
+pub(super) fn lease_from_row(row: &impl Columns) -> Result<Lease, StoreError> {
+    let at = At::row("mission_leases", row, "mission_id")?;
+    Ok(Lease {
+        mission_id: at.id_column(row, "mission_id")?,
+        owner: at.get(row, "owner")?,
+        address: at.get(row, "address")?,
+        token: at.id_column(row, "token")?,
+        expires_at: at.timestamp(row, "expires_at")?,
+    })
 }
 
 /// Every robot's token hash: 64 lower-case hex digits.

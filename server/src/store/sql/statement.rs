@@ -117,8 +117,8 @@ pub trait Transaction: Send {
     /// The engine's rows.
     type Row: Columns + Send;
 
-    /// Runs a statement that returns no rows.
-    async fn execute(&mut self, statement: Statement) -> Result<(), StoreError>;
+    /// Runs a statement that returns no rows; how many rows it changed.
+    async fn execute(&mut self, statement: Statement) -> Result<u64, StoreError>;
 
     /// Every row a statement returns.
     async fn fetch_all(&mut self, statement: Statement) -> Result<Vec<Self::Row>, StoreError>;

@@ -6,13 +6,18 @@ use std::collections::BTreeMap;
 use super::rows::{CELLS_LZ4, critical_points_json, encode_cells, leftovers_json, segments_json};
 use super::statement::{Statement, Transaction};
 use crate::domain::{MissionId, RobotId, RobotRecord, TaskId, TaskState, Timestamp, Transition};
-use crate::store::{Changeset, LoggedPatch, MapSnapshot, MissionCounters, StoreError};
+use crate::store::{Changeset, Fence, LoggedPatch, MapSnapshot, MissionCounters, StoreError};
 
 /// Writes a group of changesets, in order, inside the transaction open on
 /// `tx`. Robot records and mission counters are written whole, so only the
 /// last of each in the group is written, once, after everything they may
 /// refer to.
 pub(super) async fn group(tx: &mut impl Transaction, changesets: &[Changeset]) -> Result<(), StoreError> {
+    let fences: std::collections::BTreeSet<(MissionId, u64)> =
+        changesets.iter().filter_map(|c| c.fence).map(|f| (f.mission_id, f.token)).collect();
+    for (mission_id, token) in fences {
+        check_fence(tx, Fence { mission_id, token }).await?;
+    }
     let mut robots: BTreeMap<RobotId, &RobotRecord> = BTreeMap::new();
     let mut counters: BTreeMap<MissionId, (&MissionCounters, Timestamp)> = BTreeMap::new();
     let mut patches = Vec::new();
@@ -60,6 +65,19 @@ fn statement_chunks<T>(rows: &[T]) -> impl Iterator<Item = &[T]> {
     })
 }
 
+/// Refuses to write unless the mission's lease still carries the writer's
+/// token. The no-op update locks the lease row until the transaction ends
+/// (PostgreSQL; SQLite has one writer at a time): a claim that would change
+/// the token waits for this write, then changes it; a claim that changed it
+/// first makes this write fail.
+pub(super) async fn check_fence(tx: &mut impl Transaction, fence: Fence) -> Result<(), StoreError> {
+    let check = Statement::new("UPDATE mission_leases SET token = token WHERE mission_id = $1 AND token = $2");
+    match tx.execute(check.int(fence.mission_id as i64).int(fence.token as i64)).await? {
+        0 => Err(StoreError::Fenced { mission_id: fence.mission_id }),
+        _ => Ok(()),
+    }
+}
+
 /// `$first, $first+1, …`: `count` parameters of one row of a VALUES list.
 fn row_params(first: usize, count: usize) -> String {
     (first..first + count).map(|n| format!("${n}")).collect::<Vec<_>>().join(", ")
@@ -92,7 +110,8 @@ async fn write_patches(tx: &mut impl Transaction, patches: &[(&LoggedPatch, Time
             .int(CELLS_LZ4)
             .int(now.millis());
     }
-    tx.execute(insert).await
+    tx.execute(insert).await?;
+    Ok(())
 }
 
 /// Replaces a mission's map snapshot by a newer one. An older snapshot
@@ -115,7 +134,8 @@ async fn write_snapshot(tx: &mut impl Transaction, snapshot: &MapSnapshot, now: 
             .int(snapshot.raw_bytes as i64)
             .int(now.millis()),
     )
-    .await
+    .await?;
+    Ok(())
 }
 
 /// Removes at most `limit` of a mission's oldest patches that its stored
@@ -127,7 +147,8 @@ async fn forget_folded(tx: &mut impl Transaction, mission_id: MissionId, limit: 
                  AND id <= (SELECT through_patch_id FROM map_snapshots WHERE mission_id = $1)
              ORDER BY id LIMIT $2)",
     );
-    tx.execute(delete.int(mission_id as i64).int(i64::from(limit))).await
+    tx.execute(delete.int(mission_id as i64).int(i64::from(limit))).await?;
+    Ok(())
 }
 
 /// Writes robot records whole, in one statement.
@@ -162,7 +183,8 @@ async fn write_robots(tx: &mut impl Transaction, robots: &[&RobotRecord]) -> Res
             .int(robot.last_seen.millis())
             .int(i64::from(robot.lost));
     }
-    tx.execute(update).await
+    tx.execute(update).await?;
+    Ok(())
 }
 
 /// Everything of a changeset but its robot records and mission counters.
@@ -355,7 +377,8 @@ async fn write_counters(tx: &mut impl Transaction, m: &MissionCounters, now: Tim
             .text(&leftovers_json(&m.leftovers))
             .int(m.id as i64),
     )
-    .await
+    .await?;
+    Ok(())
 }
 
 async fn write_transition(tx: &mut impl Transaction, task_id: TaskId, t: &Transition) -> Result<(), StoreError> {
@@ -373,7 +396,8 @@ async fn write_transition(tx: &mut impl Transaction, task_id: TaskId, t: &Transi
             .int(t.at.millis())
             .text(&t.by),
     )
-    .await
+    .await?;
+    Ok(())
 }
 
 #[cfg(test)]

@@ -150,9 +150,8 @@ impl Drop for SqliteTx {
 impl Transaction for SqliteTx {
     type Row = SqliteRow;
 
-    async fn execute(&mut self, statement: Statement) -> Result<(), StoreError> {
-        query(statement).execute(&mut *self.conn).await?;
-        Ok(())
+    async fn execute(&mut self, statement: Statement) -> Result<u64, StoreError> {
+        Ok(query(statement).execute(&mut *self.conn).await?.rows_affected())
     }
 
     async fn fetch_all(&mut self, statement: Statement) -> Result<Vec<SqliteRow>, StoreError> {

@@ -25,7 +25,8 @@ async fn stored_mission(dir: &std::path::Path) -> std::path::PathBuf {
     let path = dir.join("s.db");
     let store = SqliteStore::open(&path, Durability::Full).await.unwrap();
     let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
-    let robot = store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(1)).await.unwrap();
+    let robot =
+        store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(1), None).await.unwrap();
     for seq in 1..=2 {
         let patch = Patch::from_probabilities(CellRect::new(1, 1, 2, 1), &[0.2, 0.9], &[]).unwrap();
         let changes =

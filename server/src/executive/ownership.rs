@@ -1,0 +1,227 @@
+//! Executive replicas sharing one database: which missions this one holds.
+//!
+//! Each mission is held by one replica at a time, through a lease in the
+//! store ([`crate::store::lease`]). This replica claims the missions it
+//! creates, and any mission nobody holds (never claimed, or whose holder
+//! stopped renewing more than a grace period ago) that a request asks for
+//! or that its lease keeper finds; it loads a claimed mission from the
+//! store, as after a restart, and every write it makes for it carries the
+//! claim's fencing token. A mission held by another replica is answered
+//! with that replica's address ([`Error::Elsewhere`]), which the project's
+//! clients follow. The lease keeper renews the held leases a few times per
+//! lease period and lets go of any mission whose lease another replica has
+//! taken (a write fenced meanwhile fails and is retried there).
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tokio_util::sync::CancellationToken;
+
+use super::planner::MissionCell;
+use super::{Executive, Mission};
+use crate::domain::{MissionId, MissionRecord, Timestamp};
+use crate::error::Error;
+use crate::store::{Claimant, Fence, Lease};
+
+/// How this executive shares its database with other replicas.
+#[derive(Debug, Clone)]
+pub struct ReplicaSettings {
+    /// Its name and the address clients reach it at.
+    pub claimant: Claimant,
+    /// How long a claim or a renewal lasts; renewed every third of it.
+    pub lease: Duration,
+    /// How long after a lease ran out before another replica may claim the
+    /// mission (room for clocks that disagree a little).
+    pub grace: Duration,
+}
+
+/// The leases this executive holds.
+#[derive(Debug)]
+pub(super) struct Ownership {
+    pub(super) settings: ReplicaSettings,
+    /// Each held mission's fencing token.
+    held: std::sync::Mutex<BTreeMap<MissionId, u64>>,
+    /// One claim at a time: two requests for a mission nobody holds must
+    /// not claim it twice (the second claim would fence the first).
+    claiming: tokio::sync::Mutex<()>,
+    /// When the leases were last renewed.
+    renewed: std::sync::Mutex<Instant>,
+}
+
+impl Ownership {
+    pub(super) fn new(settings: ReplicaSettings) -> Self {
+        Self {
+            settings,
+            held: std::sync::Mutex::default(),
+            claiming: tokio::sync::Mutex::default(),
+            renewed: std::sync::Mutex::new(Instant::now()),
+        }
+    }
+
+    fn held(&self) -> std::sync::MutexGuard<'_, BTreeMap<MissionId, u64>> {
+        self.held.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn fences(&self) -> Vec<Fence> {
+        self.held().iter().map(|(&mission_id, &token)| Fence { mission_id, token }).collect()
+    }
+}
+
+impl Executive {
+    /// The mission `id`, which this executive does not hold: claimed and
+    /// loaded if nobody holds it, otherwise where to ask.
+    pub(super) async fn claim_or_point(&self, ownership: &Ownership, id: MissionId) -> Result<Arc<MissionCell>, Error> {
+        let _one_at_a_time = ownership.claiming.lock().await;
+        if let Some(cell) = self.held_mission(id) {
+            return Ok(cell);
+        }
+        let Some(record) = self.store.mission(id).await? else {
+            return Err(Error::NotFound(format!("mission {id} does not exist; ListMissions shows the missions")));
+        };
+        let ReplicaSettings { claimant, lease, grace } = &ownership.settings;
+        match self.store.claim(id, claimant, Timestamp::now(), *lease, *grace).await? {
+            Some(lease) => self.adopt(ownership, record, lease).await,
+            None => Err(self.pointer(id).await),
+        }
+    }
+
+    /// Where to ask for a mission another replica holds.
+    async fn pointer(&self, id: MissionId) -> Error {
+        match self.store.lease(id).await {
+            Ok(Some(lease)) => Error::Elsewhere {
+                message: format!("mission {id} is held by the replica {} at {}: ask there", lease.owner, lease.address),
+                owner: Some(lease.address),
+            },
+            _ => Error::Elsewhere { message: format!("mission {id} is changing hands: retry shortly"), owner: None },
+        }
+    }
+
+    /// Loads a mission just claimed with `lease` and starts acting for it.
+    async fn adopt(
+        &self,
+        ownership: &Ownership,
+        record: MissionRecord,
+        lease: Lease,
+    ) -> Result<Arc<MissionCell>, Error> {
+        let id = record.id;
+        let fence = Fence { mission_id: id, token: lease.token };
+        let cells = record.spec.frame.len() as u64;
+        let loaded = match self.usage.reserve(cells, &self.settings) {
+            Ok(()) => self.writer.load(record).await.inspect_err(|_| self.usage.release(cells)),
+            Err(e) => Err(e),
+        };
+        let mut mission = match loaded {
+            Ok(mission) => mission,
+            Err(e) => {
+                // Another replica may take it at once.
+                if let Err(release) = self.store.release(fence).await {
+                    tracing::warn!(mission = id, error = %release, "a claim that could not be used stays until it runs out");
+                }
+                return Err(e);
+            }
+        };
+        mission.set_fence(fence);
+        self.refresh_tokens().await?;
+        let cell = Arc::new(MissionCell::new(mission));
+        ownership.held().insert(id, lease.token);
+        self.start_holding(Arc::clone(&cell)).await;
+        tracing::info!(mission = id, token = lease.token, "mission claimed and loaded");
+        Ok(cell)
+    }
+
+    /// A mission this executive created: claimed at once.
+    pub(super) async fn claim_new(&self, ownership: &Ownership, mission: &mut Mission) -> Result<(), Error> {
+        let id = mission.record().id;
+        let ReplicaSettings { claimant, lease, grace } = &ownership.settings;
+        let lease =
+            self.store.claim(id, claimant, Timestamp::now(), *lease, *grace).await?.ok_or_else(|| {
+                Error::Internal(format!("mission {id} was claimed by another replica as it was created"))
+            })?;
+        mission.set_fence(Fence { mission_id: id, token: lease.token });
+        ownership.held().insert(id, lease.token);
+        Ok(())
+    }
+
+    /// Lets a mission go: another replica holds it now. Its planner stops
+    /// and, once the requests under way end, its robots' streams close, so
+    /// that they reconnect and are pointed to the new holder.
+    fn give_up(&self, ownership: &Ownership, id: MissionId) {
+        ownership.held().remove(&id);
+        let cell = self.missions.write().unwrap_or_else(|e| e.into_inner()).remove(&id);
+        self.robot_missions.write().unwrap_or_else(|e| e.into_inner()).retain(|_, m| *m != id);
+        if let Some(cell) = cell {
+            cell.retire();
+            self.usage.release(cell.cells());
+        }
+        tracing::warn!(mission = id, "mission given up: another replica holds it now");
+    }
+
+    /// One round of the lease keeper: renews the held leases, lets go of
+    /// those another replica took, and claims the missions nobody holds.
+    pub async fn keep_leases(&self) -> Result<(), Error> {
+        let Some(ownership) = &self.ownership else { return Ok(()) };
+        let held = ownership.fences();
+        let period = ownership.settings.lease;
+        let renewed = match self.store.renew(&held, Timestamp::now(), period).await {
+            Ok(renewed) => renewed,
+            Err(e) => {
+                // Unrenewed past the period, the leases are others' to take:
+                // stop acting for them before anyone does.
+                let since = ownership.renewed.lock().unwrap_or_else(|e| e.into_inner()).elapsed();
+                if since > period {
+                    for fence in &held {
+                        self.give_up(ownership, fence.mission_id);
+                    }
+                }
+                return Err(e.into());
+            }
+        };
+        *ownership.renewed.lock().unwrap_or_else(|e| e.into_inner()) = Instant::now();
+        for fence in held.iter().filter(|f| !renewed.contains(&f.mission_id)) {
+            self.give_up(ownership, fence.mission_id);
+        }
+        for id in self.store.unclaimed(Timestamp::now(), ownership.settings.grace).await? {
+            if self.held_mission(id).is_none()
+                && let Err(e) = self.claim_or_point(ownership, id).await
+            {
+                tracing::debug!(mission = id, error = %e, "an unclaimed mission was not taken");
+            }
+        }
+        self.refresh_tokens().await
+    }
+
+    /// Hands every held mission on at once (a graceful stop).
+    pub async fn release_leases(&self) {
+        let Some(ownership) = &self.ownership else { return };
+        for fence in ownership.fences() {
+            if let Err(e) = self.store.release(fence).await {
+                tracing::warn!(mission = fence.mission_id, error = %e, "a lease was left to run out");
+            }
+        }
+    }
+
+    /// Rereads every robot's token hash: robots registered with other
+    /// replicas reach this one when their mission changes hands.
+    async fn refresh_tokens(&self) -> Result<(), Error> {
+        let tokens = self.store.robot_tokens().await?.into_iter().collect();
+        *self.tokens.write().unwrap_or_else(|e| e.into_inner()) = tokens;
+        Ok(())
+    }
+}
+
+/// Runs the lease keeper every third of the lease period until `stop`.
+pub async fn keep_leases_until(executive: Arc<Executive>, stop: CancellationToken) {
+    let Some(period) = executive.ownership.as_ref().map(|o| o.settings.lease / 3) else { return };
+    let mut tick = tokio::time::interval(period.max(Duration::from_millis(10)));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            () = stop.cancelled() => return,
+            _ = tick.tick() => {}
+        }
+        if let Err(e) = executive.keep_leases().await {
+            tracing::warn!(error = %e, "the leases could not be kept this round");
+        }
+    }
+}

@@ -1,0 +1,240 @@
+//! Executive replicas sharing one PostgreSQL database (where
+//! `EXPLORATION_POSTGRES_URL` names a server; `.ci/run` starts one): a
+//! fleet's mission survives the replica that holds it killed with SIGKILL
+//! three times, a different replica each time; a replica paused past its
+//! lease cannot write for the mission once another has taken it.
+
+mod common;
+
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use client_sim::RunConfig;
+use common::{binary, bundled_map, create_mission, patch, register, update, wait_until_serving};
+use exploration_proto::v1::fleet_client::FleetClient;
+use exploration_proto::v1::missions_client::MissionsClient;
+use sqlx::Connection;
+use tonic::Code;
+
+/// One `coordinator` replica process.
+struct Replica {
+    id: String,
+    port: u16,
+    child: Child,
+}
+
+impl Replica {
+    fn spawn(id: &str, port: u16, db: &str, lease: &str, grace: &str) -> Self {
+        let child = Command::new(binary("coordinator"))
+            .args(["--listen", &format!("127.0.0.1:{port}"), "--db", db, "--replica-id", id])
+            .args(["--lease-period", lease, "--lease-grace", grace])
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::null())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("coordinator starts");
+        Self { id: id.to_owned(), port, child }
+    }
+
+    fn url(&self) -> String {
+        format!("http://127.0.0.1:{}", self.port)
+    }
+
+    fn signal(&self, signal: &str) {
+        let status = Command::new("kill").args([signal, &self.child.id().to_string()]).status().unwrap();
+        assert!(status.success(), "kill {signal}");
+    }
+}
+
+impl Drop for Replica {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+/// The replica holding `mission` now and its fencing token.
+async fn holder(db: &mut sqlx::PgConnection, mission: i64) -> Option<(String, i64)> {
+    sqlx::query_as("SELECT owner, token FROM mission_leases WHERE mission_id = $1")
+        .bind(mission)
+        .fetch_optional(db)
+        .await
+        .unwrap()
+}
+
+async fn map_updates(db: &mut sqlx::PgConnection) -> i64 {
+    sqlx::query_scalar("SELECT COALESCE(MAX(map_updates), 0) FROM missions").fetch_one(db).await.unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fleet_completes_through_three_kills_of_its_missions_holder() {
+    let Some(url) = common::postgres_database("replicas_kills").await else { return };
+    let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
+    let (lease, grace) = ("2", "0.5");
+    let mut replicas: Vec<Replica> =
+        (1..=3).map(|i| Replica::spawn(&format!("r{i}"), free_port(), &url, lease, grace)).collect();
+    for replica in &replicas {
+        wait_until_serving(&replica.url(), Duration::from_secs(30)).await;
+    }
+    let list: Vec<String> = replicas.iter().map(Replica::url).collect();
+    let mut config = RunConfig::new(bundled_map("nav2_warehouse"), 8, "burgard");
+    config.server = Some(list.join(","));
+    config.cell_size = Some(0.25);
+    config.retry_budget = Duration::from_secs(60);
+    let fleet = tokio::spawn(async move { client_sim::run(&config).await });
+
+    let mut killed = Vec::new();
+    for round in 1..=3 {
+        // Well into the mission (again), then kill whoever holds it.
+        let before = map_updates(&mut db).await;
+        let owner = loop {
+            let now = map_updates(&mut db).await;
+            if now >= before + 150
+                && let Some(owner) = holder(&mut db, 1).await
+            {
+                break owner;
+            }
+            assert!(!fleet.is_finished(), "the fleet finished before kill {round}");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        };
+        let index = replicas.iter().position(|r| r.id == owner.0).unwrap();
+        replicas[index].signal("-KILL");
+        let killed_at = Instant::now();
+        let at_kill = map_updates(&mut db).await;
+        // Taken over: another replica holds it, and the fleet's updates are written again.
+        let taken = loop {
+            if let Some(now) = holder(&mut db, 1).await
+                && now.1 > owner.1
+                && map_updates(&mut db).await > at_kill
+            {
+                break now;
+            }
+            assert!(killed_at.elapsed() < Duration::from_secs(60), "nobody took the mission over after kill {round}");
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        };
+        eprintln!(
+            "kill {round}: {} (token {}) killed, {} (token {}) writing again after {} ms",
+            owner.0,
+            owner.1,
+            taken.0,
+            taken.1,
+            killed_at.elapsed().as_millis()
+        );
+        assert_ne!(taken.0, owner.0);
+        killed.push(owner.0.clone());
+        // The killed one comes back, empty-handed, so that three stay.
+        let port = replicas[index].port;
+        replicas[index] = Replica::spawn(&owner.0, port, &url, lease, grace);
+    }
+    let report = fleet.await.unwrap().unwrap();
+    assert!(report.completed, "{report:?}");
+    assert_eq!(report.coverage, 1.0);
+    assert_eq!(
+        report.updates_acknowledged, report.map_updates,
+        "every acknowledged update is applied exactly once across the kills"
+    );
+    killed.dedup();
+    assert_eq!(killed.len(), 3, "a different replica each time, in turn: {killed:?}");
+    no_task_had_two_owners(&mut db).await;
+}
+
+/// Every task's transitions, in the order written, form one chain (each
+/// starts where the one before ended, none after the task ended), and no
+/// robot is left with two open tasks: two replicas acting for the mission
+/// at once would move one task twice, or revive an ended one.
+async fn no_task_had_two_owners(db: &mut sqlx::PgConnection) {
+    let transitions: Vec<(i64, Option<String>, String)> =
+        sqlx::query_as("SELECT task_id, from_state, to_state FROM task_transitions ORDER BY id")
+            .fetch_all(&mut *db)
+            .await
+            .unwrap();
+    assert!(transitions.len() > 100, "{} transitions", transitions.len());
+    let mut last: std::collections::HashMap<i64, String> = std::collections::HashMap::new();
+    for (task, from, to) in transitions {
+        let previous = last.get(&task);
+        assert_eq!(from.as_ref(), previous, "task {task} moved from {from:?} to {to} after {previous:?}");
+        if let Some(previous) = previous {
+            assert!(
+                matches!(previous.as_str(), "assigned" | "active"),
+                "task {task} moved after it ended ({previous})"
+            );
+        }
+        last.insert(task, to);
+    }
+    let doubled: Vec<(i64, i64)> = sqlx::query_as(
+        "SELECT robot_id, COUNT(*) FROM tasks WHERE state IN ('assigned', 'active') GROUP BY robot_id HAVING COUNT(*) > 1",
+    )
+    .fetch_all(&mut *db)
+    .await
+    .unwrap();
+    assert!(doubled.is_empty(), "robots with two open tasks: {doubled:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_replica_paused_past_its_lease_cannot_write_and_gives_the_mission_up() {
+    let Some(url) = common::postgres_database("replicas_paused").await else { return };
+    let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
+    let a = Replica::spawn("a", free_port(), &url, "1", "0.2");
+    let b = Replica::spawn("b", free_port(), &url, "1", "0.2");
+    wait_until_serving(&a.url(), Duration::from_secs(30)).await;
+    wait_until_serving(&b.url(), Duration::from_secs(30)).await;
+    // Straight channels, which follow no owner: each call reaches the replica it names.
+    let channel = |replica: &Replica| tonic::transport::Endpoint::from_shared(replica.url()).unwrap().connect_lazy();
+    let mut missions_a = MissionsClient::new(channel(&a));
+    let mut fleet_a = FleetClient::new(channel(&a));
+    let mission = create_mission(&mut missions_a, 40, 40, "nearest").await;
+    let robot = register(&mut fleet_a, mission.id, "r", 0.55, 0.55).await;
+    fleet_a.update_map(update(robot.id, 1, 0.55, 0.55, vec![patch(0, 0, 10, 10, 0.05)])).await.unwrap();
+    assert_eq!(holder(&mut db, mission.id as i64).await.map(|h| h.0).as_deref(), Some("a"));
+
+    // B points to A while A holds the mission.
+    let mut fleet_b = FleetClient::new(channel(&b));
+    let pointed = fleet_b.update_map(update(robot.id, 2, 0.55, 0.55, vec![])).await.unwrap_err();
+    assert_eq!(pointed.code(), Code::Unavailable);
+    assert_eq!(pointed.metadata().get("exploration-owner").unwrap(), a.url().as_str());
+
+    a.signal("-STOP");
+    // Past A's lease and the grace, B takes the mission and writes for it.
+    let paused_at = Instant::now();
+    let written_by_b = loop {
+        match fleet_b.update_map(update(robot.id, 2, 0.55, 0.55, vec![patch(10, 0, 5, 5, 0.05)])).await {
+            Ok(answer) => break answer.into_inner(),
+            Err(status) => assert_eq!(status.code(), Code::Unavailable, "{status:?}"),
+        }
+        assert!(paused_at.elapsed() < Duration::from_secs(20), "B never took the mission");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+    assert_eq!(written_by_b.applied_seq, 2);
+    assert_eq!(holder(&mut db, mission.id as i64).await.unwrap(), ("b".to_owned(), 2));
+
+    // A wakes up believing it holds the mission: its write is refused.
+    a.signal("-CONT");
+    let stale = fleet_a.update_map(update(robot.id, 3, 0.55, 0.55, vec![patch(20, 20, 5, 5, 0.95)])).await.unwrap_err();
+    assert_eq!(stale.code(), Code::Unavailable, "{stale:?}");
+    let (seq, updates): (i64, i64) = sqlx::query_as(
+        "SELECT r.last_map_seq, m.map_updates FROM robots r JOIN missions m ON m.id = r.mission_id WHERE r.id = $1",
+    )
+    .bind(robot.id as i64)
+    .fetch_one(&mut db)
+    .await
+    .unwrap();
+    assert_eq!((seq, updates), (2, 2), "nothing of A's write reached the database");
+    // And A has let the mission go: it points to B.
+    let woke_at = Instant::now();
+    loop {
+        let status = fleet_a.update_map(update(robot.id, 3, 0.55, 0.55, vec![])).await.unwrap_err();
+        assert_eq!(status.code(), Code::Unavailable, "{status:?}");
+        if status.metadata().get("exploration-owner").is_some_and(|o| o == b.url().as_str()) {
+            break;
+        }
+        assert!(woke_at.elapsed() < Duration::from_secs(10), "A kept the mission: {status:?}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // B carries on where it was.
+    let next = fleet_b.update_map(update(robot.id, 3, 0.55, 0.55, vec![])).await.unwrap().into_inner();
+    assert_eq!(next.applied_seq, 3);
+}
