@@ -186,7 +186,7 @@ pub async fn run(
     shutdown: impl Future<Output = ()> + Send + 'static,
     config: Config,
 ) -> Result<(), ServeError> {
-    run_with(Listeners { grpc: listener, http: None }, shutdown, config).await
+    run_with(Listeners { grpc: listener, http: None, health: None }, shutdown, config).await
 }
 
 /// What an executive serves on: gRPC, and optionally HTTP (`/metrics`).
@@ -196,6 +196,10 @@ pub struct Listeners {
     pub grpc: TcpListener,
     /// The HTTP routes (see [`http`]); none when `None`.
     pub http: Option<TcpListener>,
+    /// The gRPC health service alone, in plaintext: for probes that speak
+    /// no TLS (Kubernetes' gRPC probes), while the API keeps it. No token
+    /// crosses it.
+    pub health: Option<TcpListener>,
 }
 
 /// [`run`] with every listener.
@@ -204,7 +208,7 @@ pub async fn run_with(
     shutdown: impl Future<Output = ()> + Send + 'static,
     config: Config,
 ) -> Result<(), ServeError> {
-    let Listeners { grpc: listener, http: http_listener } = listeners;
+    let Listeners { grpc: listener, http: http_listener, health: health_listener } = listeners;
     let auth = auth::Authenticator::new(config.operator_token.as_deref(), config.operator_tokens_file.as_deref())?;
     let address = listener.local_addr().ok();
     warn_about_exposure(&auth, address, config.tls.is_some());
@@ -260,6 +264,16 @@ pub async fn run_with(
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<service::MissionsService>().await;
     health.set_serving::<service::FleetService>().await;
+    let health_server = health_listener.map(|listener| {
+        tracing::info!(address = ?listener.local_addr().ok(), "serving the gRPC health service alone, in plaintext");
+        let stop = streams_end.clone().cancelled_owned();
+        let incoming = tonic::transport::server::TcpIncoming::from(listener);
+        tokio::spawn(
+            tonic::transport::Server::builder()
+                .add_service(health_service.clone())
+                .serve_with_incoming_shutdown(incoming, stop),
+        )
+    });
     let reflection = tonic_reflection::server::Builder::configure()
         .register_encoded_file_descriptor_set(pb::FILE_DESCRIPTOR_SET)
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
@@ -324,6 +338,13 @@ pub async fn run_with(
     }
     if let Err(e) = compactor.await {
         tracing::error!(error = %e, "the patch log compactor failed");
+    }
+    if let Some(server) = health_server {
+        match server.await {
+            Ok(Err(e)) => tracing::error!(error = %e, "the health listener failed"),
+            Err(e) => tracing::error!(error = %e, "the health listener task failed"),
+            Ok(Ok(())) => {}
+        }
     }
     if let Some(server) = http_server {
         match server.await {

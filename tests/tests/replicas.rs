@@ -140,6 +140,16 @@ async fn a_fleet_completes_through_three_kills_of_its_missions_holder() {
     killed.dedup();
     assert_eq!(killed.len(), 3, "a different replica each time, in turn: {killed:?}");
     no_task_had_two_owners(&mut db).await;
+    // The takeover time, as the fleet saw it: the longest waits between two
+    // acknowledged map updates (each is stamped when written).
+    let gaps: Vec<i64> = sqlx::query_scalar(
+        "SELECT gap FROM (SELECT received_at - LAG(received_at) OVER (ORDER BY id) AS gap FROM map_patches) g
+         WHERE gap IS NOT NULL ORDER BY gap DESC LIMIT 3",
+    )
+    .fetch_all(&mut db)
+    .await
+    .unwrap();
+    eprintln!("takeovers (last acknowledged update before a kill to the first after), ms: {gaps:?}");
 }
 
 /// Every task's transitions, in the order written, form one chain (each

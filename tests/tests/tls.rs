@@ -7,7 +7,7 @@ mod common;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::{Pki, TestExecutive, bundled_map, wait_until_serving_tls};
+use common::{Pki, TestExecutive, bundled_map, wait_until_serving, wait_until_serving_tls};
 use exploration_proto::client::{ClientTls, endpoint};
 use exploration_proto::v1 as pb;
 use exploration_proto::v1::missions_client::MissionsClient;
@@ -20,9 +20,11 @@ const TOKEN: &str = "tls-operator-token-0001";
 async fn a_fleet_explores_through_tls_with_the_real_binaries() {
     let dir = tempfile::tempdir().unwrap();
     let pki = Pki::new(dir.path());
-    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let free_port = || std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let (port, health_port) = (free_port(), free_port());
     let mut coordinator = Command::new(common::binary("coordinator"))
-        .args(["--listen", &format!("127.0.0.1:{port}"), "--db"])
+        .args(["--listen", &format!("127.0.0.1:{port}"), "--health-listen", &format!("127.0.0.1:{health_port}")])
+        .arg("--db")
         .arg(dir.path().join("tls.db"))
         .arg("--tls-cert")
         .arg(&pki.server_cert)
@@ -36,6 +38,10 @@ async fn a_fleet_explores_through_tls_with_the_real_binaries() {
     let url = format!("https://127.0.0.1:{port}");
     let tls = ClientTls::from_files(Some(&pki.ca), None, None).unwrap();
     wait_until_serving_tls(&url, &tls, Duration::from_secs(30)).await;
+    // Probes that speak no TLS ask the plaintext health listener; the API
+    // port speaks only TLS.
+    wait_until_serving(&format!("http://127.0.0.1:{health_port}"), Duration::from_secs(5)).await;
+    assert!(list(&format!("http://127.0.0.1:{port}"), None).await.is_err(), "the API answered in plaintext");
 
     let fleet = Command::new(common::binary("fleet-sim"))
         .args(["run", "--server", &url, "--tls-ca"])

@@ -448,7 +448,7 @@ impl EmbeddedExecutive {
             }
             None => None,
         };
-        let listeners = coordinator::Listeners { grpc: listener, http };
+        let listeners = coordinator::Listeners { grpc: listener, http, health: None };
         let task = tokio::spawn(coordinator::run_with(listeners, shutdown, config));
         Ok(Self { url: format!("http://{address}"), token: operator_token, clock, stop, task: Some(task), _dir: dir })
     }

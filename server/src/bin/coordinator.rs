@@ -85,6 +85,11 @@ struct Args {
     /// same certificate and client CA, when gRPC has TLS.
     #[arg(long, visible_alias = "metrics", env = "COORDINATOR_HTTP")]
     http: Option<SocketAddr>,
+    /// Serve the gRPC health service alone, in plaintext, at this address
+    /// too: for probes that speak no TLS (Kubernetes' gRPC probes) when the
+    /// API is served with TLS. Off unless given.
+    #[arg(long, env = "COORDINATOR_HEALTH_LISTEN")]
+    health_listen: Option<SocketAddr>,
     /// Log format.
     #[arg(long, env = "COORDINATOR_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     log_format: LogFormat,
@@ -220,7 +225,15 @@ async fn main() -> anyhow::Result<()> {
         ),
         None => None,
     };
-    let listeners = coordinator::Listeners { grpc: listener, http };
+    let health = match args.health_listen {
+        Some(address) => Some(
+            tokio::net::TcpListener::bind(address)
+                .await
+                .with_context(|| format!("cannot listen for health checks on {address}"))?,
+        ),
+        None => None,
+    };
+    let listeners = coordinator::Listeners { grpc: listener, http, health };
     coordinator::run_with(listeners, shutdown_signal(), config).await.context("the executive failed")
 }
 

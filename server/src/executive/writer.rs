@@ -137,7 +137,7 @@ impl Writer {
 
     async fn reload(&self, mission: &mut Mission) -> Result<(), Error> {
         let id = mission.record().id;
-        let record = self.store.missions().await?.into_iter().find(|r| r.id == id);
+        let record = self.store.mission(id).await?;
         let record = record.ok_or_else(|| Error::Internal(format!("mission {id} is no longer in the store")))?;
         let fresh = self.load(record).await?;
         mission.replace_after_failed_write(fresh);

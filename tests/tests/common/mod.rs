@@ -51,7 +51,7 @@ impl TestExecutive {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let address = listener.local_addr().unwrap();
         let stop = CancellationToken::new();
-        let listeners = coordinator::Listeners { grpc: listener, http };
+        let listeners = coordinator::Listeners { grpc: listener, http, health: None };
         let task = tokio::spawn(coordinator::run_with(listeners, stop.clone().cancelled_owned(), config));
         let mut exec = Self { address, url: format!("http://{address}"), http: http_address, db, stop, task };
         if probe {
