@@ -17,13 +17,13 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use async_trait::async_trait;
-use sqlx::pool::PoolConnection;
 use sqlx::postgres::{PgConnectOptions, PgConnection, PgPool, PgPoolOptions, PgRow};
 use sqlx::{AssertSqlSafe, ConnectOptions, Connection, Postgres};
 
 use super::StoreError;
 use super::sql::SqlStore;
-use super::sql::statement::{Backend, Param, Statement, Transaction};
+use super::sql::pooled::{Engine, PooledTx};
+use super::sql::statement::{Backend, Statement};
 
 static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations/postgres");
 
@@ -158,95 +158,27 @@ pub async fn test_database(name: &str) -> Option<String> {
     Some(fresh_database(&server, name).await.unwrap_or_else(|e| panic!("a test database on {server}: {e}")))
 }
 
-/// `statement` as sqlx's query for PostgreSQL.
-fn query(statement: Statement) -> sqlx::query::Query<'static, Postgres, sqlx::postgres::PgArguments> {
-    let mut query = sqlx::query(AssertSqlSafe(statement.text));
-    for param in statement.params {
-        query = match param {
-            Param::Int(v) => query.bind(v),
-            Param::Real(v) => query.bind(v),
-            Param::Text(v) => query.bind(v),
-            Param::Bytes(v) => query.bind(v),
-        };
-    }
-    query
-}
-
-/// A PostgreSQL transaction on a connection of its own.
-#[derive(Debug)]
-pub struct PostgresTx {
-    conn: PoolConnection<Postgres>,
-    _turn: Option<tokio::sync::OwnedMutexGuard<()>>,
-    committed: bool,
-}
-
-impl PostgresTx {
-    async fn begin(
-        mut conn: PoolConnection<Postgres>,
-        begin: &'static str,
-        turn: Option<tokio::sync::OwnedMutexGuard<()>>,
-    ) -> Result<Self, StoreError> {
-        if let Err(e) = sqlx::query(begin).execute(&mut *conn).await {
-            conn.close_on_drop();
-            return Err(e.into());
-        }
-        Ok(Self { conn, _turn: turn, committed: false })
-    }
-}
-
-impl Drop for PostgresTx {
-    fn drop(&mut self) {
-        // The server rolls back the transaction of a connection that ends.
-        if !self.committed {
-            self.conn.close_on_drop();
-        }
-    }
-}
-
-#[async_trait]
-impl Transaction for PostgresTx {
-    type Row = PgRow;
-
-    async fn execute(&mut self, statement: Statement) -> Result<u64, StoreError> {
-        Ok(query(statement).execute(&mut *self.conn).await?.rows_affected())
-    }
-
-    async fn fetch_all(&mut self, statement: Statement) -> Result<Vec<PgRow>, StoreError> {
-        Ok(query(statement).fetch_all(&mut *self.conn).await?)
-    }
-
-    async fn fetch_one(&mut self, statement: Statement) -> Result<PgRow, StoreError> {
-        Ok(query(statement).fetch_one(&mut *self.conn).await?)
-    }
-
-    async fn commit(mut self) -> Result<(), StoreError> {
-        sqlx::query("COMMIT").execute(&mut *self.conn).await?;
-        self.committed = true;
-        Ok(())
-    }
-}
-
 #[async_trait]
 impl Backend for PostgresBackend {
     type Row = PgRow;
-    type Tx = PostgresTx;
+    type Tx = PooledTx<Postgres>;
 
     async fn fetch_all(&self, statement: Statement) -> Result<Vec<PgRow>, StoreError> {
-        Ok(query(statement).fetch_all(&self.pool).await?)
+        Ok(Postgres::query(statement).fetch_all(&self.pool).await?)
     }
 
     async fn fetch_optional(&self, statement: Statement) -> Result<Option<PgRow>, StoreError> {
-        Ok(query(statement).fetch_optional(&self.pool).await?)
+        Ok(Postgres::query(statement).fetch_optional(&self.pool).await?)
     }
 
-    async fn begin_write(&self) -> Result<PostgresTx, StoreError> {
+    async fn begin_write(&self) -> Result<PooledTx<Postgres>, StoreError> {
         let turn = Arc::clone(&self.turn).lock_owned().await;
-        PostgresTx::begin(self.pool.acquire().await?, "BEGIN", Some(turn)).await
+        PooledTx::begin(self.pool.acquire().await?, "BEGIN", Some(turn)).await
     }
 
-    async fn begin_read(&self) -> Result<PostgresTx, StoreError> {
+    async fn begin_read(&self) -> Result<PooledTx<Postgres>, StoreError> {
         // READ COMMITTED would let each statement see a later moment.
-        PostgresTx::begin(self.pool.acquire().await?, "BEGIN ISOLATION LEVEL REPEATABLE READ READ ONLY", None).await
+        PooledTx::begin(self.pool.acquire().await?, "BEGIN ISOLATION LEVEL REPEATABLE READ READ ONLY", None).await
     }
 
     async fn backup(&self, _path: &Path) -> Result<(), StoreError> {

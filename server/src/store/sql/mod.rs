@@ -2,11 +2,14 @@
 //!
 //! [`SqlStore`] holds the queries and the group committer; a [`Backend`]
 //! runs them on one engine (SQLite in [`crate::store::sqlite`], PostgreSQL
-//! in [`crate::store::postgres`]). [`rows`] reads records back and checks
-//! them; [`write`] writes changesets; [`group`] writes them in groups.
+//! in [`crate::store::postgres`]), both through sqlx's pools ([`pooled`]).
+//! [`rows`] reads records back and checks them; [`write`] writes
+//! changesets; [`group`] writes them in groups; [`leases`] keeps the
+//! replicas' mission leases.
 
 mod group;
 mod leases;
+pub mod pooled;
 pub(super) mod rows;
 pub mod statement;
 mod write;

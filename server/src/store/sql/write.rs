@@ -78,28 +78,26 @@ pub(super) async fn check_fence(tx: &mut impl Transaction, fence: Fence) -> Resu
     }
 }
 
-/// `$first, $first+1, …`: `count` parameters of one row of a VALUES list.
-fn row_params(first: usize, count: usize) -> String {
-    (first..first + count).map(|n| format!("${n}")).collect::<Vec<_>>().join(", ")
+/// `(?, ?, …), (…)`: `rows` rows of `columns` parameters each, the first
+/// of each row inside `first`'s text (`?` marks where), for a statement of
+/// positional parameters ([`Statement::positional`]).
+fn values_list(rows: usize, columns: usize, first: &str) -> String {
+    let rest = ", ?".repeat(columns - 1);
+    let row = format!("({first}{rest})");
+    vec![row; rows].join(", ")
 }
 
 /// Appends map patches to the log, in order, in one statement.
 async fn write_patches(tx: &mut impl Transaction, patches: &[(&LoggedPatch, Timestamp)]) -> Result<(), StoreError> {
-    const COLUMNS: usize = 9;
-    let rows: Vec<String> = (0..patches.len())
-        .map(|i| {
-            let first = 1 + i * COLUMNS;
-            format!("((SELECT mission_id FROM robots WHERE id = ${first}), {})", row_params(first, COLUMNS))
-        })
-        .collect();
-    let mut insert = Statement::new(format!(
+    let mut insert = Statement::positional(format!(
         "INSERT INTO map_patches (mission_id, robot_id, seq, x, y, width, height, cells, cells_format, received_at)
          VALUES {}",
-        rows.join(", ")
+        values_list(patches.len(), 10, "(SELECT mission_id FROM robots WHERE id = ?)")
     ));
     for (logged, now) in patches {
         let rect = logged.patch.rect();
         insert = insert
+            .int(logged.robot_id as i64)
             .int(logged.robot_id as i64)
             .int(logged.seq as i64)
             .int(i64::from(rect.x))
@@ -153,16 +151,14 @@ async fn forget_folded(tx: &mut impl Transaction, mission_id: MissionId, limit: 
 
 /// Writes robot records whole, in one statement.
 async fn write_robots(tx: &mut impl Transaction, robots: &[&RobotRecord]) -> Result<(), StoreError> {
-    const COLUMNS: usize = 16;
-    let rows: Vec<String> = (0..robots.len()).map(|i| format!("({})", row_params(1 + i * COLUMNS, COLUMNS))).collect();
-    let mut update = Statement::new(format!(
+    let mut update = Statement::positional(format!(
         "UPDATE robots SET sensor_range_m = v.column2, field_of_view_rad = v.column3, speed_mps = v.column4,
                 footprint_radius_m = v.column5, state = v.column6, pose_x = v.column7, pose_y = v.column8,
                 pose_theta = v.column9, last_map_seq = v.column10, distance_m = v.column11,
                 assignment_version = v.column12, assigned_distance_m = v.column13, current_task_id = v.column14,
                 last_seen = v.column15, lost = v.column16
          FROM (VALUES {}) AS v WHERE robots.id = v.column1",
-        rows.join(", ")
+        values_list(robots.len(), 16, "?")
     ));
     for robot in robots {
         update = update

@@ -10,16 +10,16 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use async_trait::async_trait;
-use sqlx::pool::PoolConnection;
+use sqlx::Sqlite;
 use sqlx::sqlite::{
     SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteRow, SqliteSynchronous,
 };
-use sqlx::{AssertSqlSafe, Sqlite};
 
 use super::StoreError;
 use super::lock::StoreLock;
 use super::sql::SqlStore;
-use super::sql::statement::{Backend, Param, Statement, Transaction};
+use super::sql::pooled::{Engine, PooledTx};
+use super::sql::statement::{Backend, Statement};
 
 static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations/sqlite");
 
@@ -99,98 +99,28 @@ impl SqlStore<SqliteBackend> {
     }
 }
 
-/// `statement` as sqlx's query for SQLite.
-fn query(statement: Statement) -> sqlx::query::Query<'static, Sqlite, sqlx::sqlite::SqliteArguments> {
-    let mut query = sqlx::query(AssertSqlSafe(statement.text));
-    for param in statement.params {
-        query = match param {
-            Param::Int(v) => query.bind(v),
-            Param::Real(v) => query.bind(v),
-            Param::Text(v) => query.bind(v),
-            Param::Bytes(v) => query.bind(v),
-        };
-    }
-    query
-}
-
-/// A SQLite transaction on a connection of its own.
-#[derive(Debug)]
-pub struct SqliteTx {
-    conn: PoolConnection<Sqlite>,
-    /// The writer's turn, for a transaction that writes.
-    _turn: Option<tokio::sync::OwnedMutexGuard<()>>,
-    committed: bool,
-}
-
-impl SqliteTx {
-    async fn begin(
-        mut conn: PoolConnection<Sqlite>,
-        begin: &'static str,
-        turn: Option<tokio::sync::OwnedMutexGuard<()>>,
-    ) -> Result<Self, StoreError> {
-        if let Err(e) = sqlx::query(begin).execute(&mut *conn).await {
-            conn.close_on_drop();
-            return Err(e.into());
-        }
-        Ok(Self { conn, _turn: turn, committed: false })
-    }
-}
-
-impl Drop for SqliteTx {
-    fn drop(&mut self) {
-        // After a full disk SQLite may or may not have rolled back by itself:
-        // closing the connection rolls back whatever is still open.
-        if !self.committed {
-            self.conn.close_on_drop();
-        }
-    }
-}
-
-#[async_trait]
-impl Transaction for SqliteTx {
-    type Row = SqliteRow;
-
-    async fn execute(&mut self, statement: Statement) -> Result<u64, StoreError> {
-        Ok(query(statement).execute(&mut *self.conn).await?.rows_affected())
-    }
-
-    async fn fetch_all(&mut self, statement: Statement) -> Result<Vec<SqliteRow>, StoreError> {
-        Ok(query(statement).fetch_all(&mut *self.conn).await?)
-    }
-
-    async fn fetch_one(&mut self, statement: Statement) -> Result<SqliteRow, StoreError> {
-        Ok(query(statement).fetch_one(&mut *self.conn).await?)
-    }
-
-    async fn commit(mut self) -> Result<(), StoreError> {
-        sqlx::query("COMMIT").execute(&mut *self.conn).await?;
-        self.committed = true;
-        Ok(())
-    }
-}
-
 #[async_trait]
 impl Backend for SqliteBackend {
     type Row = SqliteRow;
-    type Tx = SqliteTx;
+    type Tx = PooledTx<Sqlite>;
 
     async fn fetch_all(&self, statement: Statement) -> Result<Vec<SqliteRow>, StoreError> {
-        Ok(query(statement).fetch_all(&self.pool).await?)
+        Ok(Sqlite::query(statement).fetch_all(&self.pool).await?)
     }
 
     async fn fetch_optional(&self, statement: Statement) -> Result<Option<SqliteRow>, StoreError> {
-        Ok(query(statement).fetch_optional(&self.pool).await?)
+        Ok(Sqlite::query(statement).fetch_optional(&self.pool).await?)
     }
 
-    async fn begin_write(&self) -> Result<SqliteTx, StoreError> {
+    async fn begin_write(&self) -> Result<PooledTx<Sqlite>, StoreError> {
         let turn = Arc::clone(&self.turn).lock_owned().await;
         // IMMEDIATE: take SQLite's write lock now, not halfway through.
-        SqliteTx::begin(self.pool.acquire().await?, "BEGIN IMMEDIATE", Some(turn)).await
+        PooledTx::begin(self.pool.acquire().await?, "BEGIN IMMEDIATE", Some(turn)).await
     }
 
-    async fn begin_read(&self) -> Result<SqliteTx, StoreError> {
+    async fn begin_read(&self) -> Result<PooledTx<Sqlite>, StoreError> {
         // DEFERRED: the first read fixes the snapshot every later one sees.
-        SqliteTx::begin(self.pool.acquire().await?, "BEGIN", None).await
+        PooledTx::begin(self.pool.acquire().await?, "BEGIN", None).await
     }
 
     async fn backup(&self, path: &Path) -> Result<(), StoreError> {
