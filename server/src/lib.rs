@@ -237,8 +237,13 @@ pub async fn run_with(
     };
     let sweeper = tokio::spawn(sweep_until(executive.clone(), clock, streams_end.clone()));
     let lease_keeper = tokio::spawn(executive::keep_leases_until(executive.clone(), streams_end.clone()));
+    let holds: store::compact::Holds = {
+        let executive = Arc::clone(&executive);
+        Arc::new(move |mission| executive.holds(mission))
+    };
     let compactor = tokio::spawn(store::compact::run(
         Arc::clone(&store),
+        holds,
         config.compaction,
         Arc::clone(&metrics),
         streams_end.clone(),

@@ -329,6 +329,11 @@ impl Executive {
         }
     }
 
+    /// Whether this executive holds (acts for) the mission.
+    pub fn holds(&self, id: MissionId) -> bool {
+        self.held_mission(id).is_some()
+    }
+
     /// A mission this executive holds.
     fn held_mission(&self, id: MissionId) -> Option<Arc<MissionCell>> {
         self.missions.read().unwrap_or_else(|e| e.into_inner()).get(&id).cloned()

@@ -41,9 +41,19 @@ impl Default for Compaction {
     }
 }
 
-/// Folds every mission's log whenever it passes `compaction.after_patches`,
-/// until `stop`.
-pub async fn run(store: Arc<dyn Store>, compaction: Compaction, metrics: Arc<Metrics>, stop: CancellationToken) {
+/// Which missions this executive folds: those it holds (replicas sharing a
+/// database would otherwise all fold every mission).
+pub type Holds = Arc<dyn Fn(MissionId) -> bool + Send + Sync>;
+
+/// Folds the log of every mission `holds` whenever it passes
+/// `compaction.after_patches`, until `stop`.
+pub async fn run(
+    store: Arc<dyn Store>,
+    holds: Holds,
+    compaction: Compaction,
+    metrics: Arc<Metrics>,
+    stop: CancellationToken,
+) {
     if compaction.after_patches == 0 {
         return;
     }
@@ -54,7 +64,7 @@ pub async fn run(store: Arc<dyn Store>, compaction: Compaction, metrics: Arc<Met
             () = stop.cancelled() => return,
             _ = tick.tick() => {}
         }
-        if let Err(e) = fold_all(&*store, compaction.after_patches, &metrics, &stop).await {
+        if let Err(e) = fold_all(&*store, &holds, compaction.after_patches, &metrics, &stop).await {
             tracing::warn!(error = %e, "the patch log could not be folded; tried again later");
         }
     }
@@ -73,11 +83,12 @@ const PAUSE: Duration = Duration::from_millis(20);
 /// One pass over every mission.
 async fn fold_all(
     store: &dyn Store,
+    holds: &Holds,
     after_patches: u32,
     metrics: &Metrics,
     stop: &CancellationToken,
 ) -> Result<(), StoreError> {
-    for mission in store.missions().await? {
+    for mission in store.missions().await?.into_iter().filter(|m| holds(m.id)) {
         while !stop.is_cancelled() && store.unfolded_patches(mission.id).await? >= u64::from(after_patches) {
             let folded = fold(store, &mission, after_patches).await?;
             if folded == 0 {
