@@ -331,6 +331,54 @@ async fn connect(cli: &Cli) -> anyhow::Result<Missions> {
         .max_decoding_message_size(exploration_proto::MAX_MESSAGE_BYTES))
 }
 
+/// How long `watch` waits for an executive (or the replica that holds the
+/// mission) to answer again before it gives up.
+const WATCH_PATIENCE: std::time::Duration = std::time::Duration::from_secs(60);
+
+/// Shows each change of a mission an operator would see, until `count`
+/// views: through a restart of the executive, or the mission passing to
+/// another replica, it watches again (where the channel now points).
+async fn watch(api: &mut Missions, mission: u64, count: Option<usize>, out: &output::Output) -> anyhow::Result<()> {
+    let (mut seen, mut last) = (0, None);
+    let mut heard = std::time::Instant::now();
+    loop {
+        let ended = match api.watch_mission(pb::WatchMissionRequest { mission_id: mission }).await {
+            Ok(views) => {
+                let mut views = views.into_inner();
+                loop {
+                    match views.message().await {
+                        Ok(Some(view)) => {
+                            heard = std::time::Instant::now();
+                            // The executive pushes every change, heartbeats
+                            // included; show only what changes what an operator sees.
+                            let key = view.mission.as_ref().map(|m| {
+                                let robots: Vec<_> = view.robots.iter().map(|r| (r.task_id, r.lost, r.state)).collect();
+                                (m.state, m.frontier_cells, m.replans, m.robots, robots)
+                            });
+                            if key == last {
+                                continue;
+                            }
+                            last = key;
+                            out.view(&view);
+                            seen += 1;
+                            if count.is_some_and(|count| seen >= count) {
+                                return Ok(());
+                            }
+                        }
+                        Ok(None) => break tonic::Status::unavailable("the stream ended"),
+                        Err(status) => break status,
+                    }
+                }
+            }
+            Err(status) => status,
+        };
+        if ended.code() != tonic::Code::Unavailable || heard.elapsed() > WATCH_PATIENCE {
+            return Err(ended.into());
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(250)).await;
+    }
+}
+
 /// Receives a backup into `file`: written beside it first, checked against
 /// the size and SHA-256 the executive sent, synced, then renamed into place.
 async fn backup(api: &mut Missions, file: &std::path::Path) -> anyhow::Result<u64> {
@@ -461,27 +509,7 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             let mission = api.allow_region(request).await?.into_inner();
             out.mission(&mission);
         }
-        Command::Watch { mission, count } => {
-            let mut views = api.watch_mission(pb::WatchMissionRequest { mission_id: mission }).await?.into_inner();
-            let (mut seen, mut last) = (0, None);
-            while let Some(view) = views.message().await? {
-                // The executive pushes every change, heartbeats included;
-                // show only what changes what an operator sees.
-                let key = view.mission.as_ref().map(|m| {
-                    let robots: Vec<_> = view.robots.iter().map(|r| (r.task_id, r.lost, r.state)).collect();
-                    (m.state, m.frontier_cells, m.replans, m.robots, robots)
-                });
-                if key == last {
-                    continue;
-                }
-                last = key;
-                out.view(&view);
-                seen += 1;
-                if count.is_some_and(|count| seen >= count) {
-                    break;
-                }
-            }
-        }
+        Command::Watch { mission, count } => watch(&mut api, mission, count, &out).await?,
         Command::Backup { file } => {
             let bytes = backup(&mut api, &file).await?;
             out.done(&format!("wrote {} ({bytes} bytes, checked)", file.display()));
