@@ -204,6 +204,28 @@ impl Backend for PostgresBackend {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::store::Store;
+
+    /// The database password crosses the network: the store speaks TLS to
+    /// the server and checks its certificate (`sslmode=verify-full`),
+    /// refusing one that its CA did not sign. Needs a server with TLS and
+    /// its CA in `EXPLORATION_POSTGRES_CA` (`.ci/run` makes both).
+    #[tokio::test]
+    async fn the_store_speaks_tls_to_postgres_and_checks_the_certificate() {
+        let Some(url) = test_database("store_tls").await else { return };
+        let Ok(ca) = std::env::var("EXPLORATION_POSTGRES_CA") else {
+            eprintln!("SKIPPED store_tls: set EXPLORATION_POSTGRES_CA to the CA of the server's TLS certificate");
+            return;
+        };
+        let verified = format!("{url}?sslmode=verify-full&sslrootcert={ca}");
+        let store = PostgresStore::open(&verified, false, None).await.unwrap();
+        assert!(store.missions().await.unwrap().is_empty());
+        store.close().await;
+        // Other CAs (the system's), none of which signed the server's certificate.
+        let refused = PostgresStore::open(&format!("{url}?sslmode=verify-full"), false, None).await;
+        let err = refused.expect_err("a server whose certificate no trusted CA signed was trusted");
+        assert!(err.to_string().contains("certificate"), "{err}");
+    }
 
     #[test]
     fn passwords_never_leave_the_url() {
