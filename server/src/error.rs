@@ -86,6 +86,7 @@ impl From<Error> for tonic::Status {
             Error::ShuttingDown => Status::unavailable(e.to_string()),
             Error::Overloaded(m) => overloaded(m),
             Error::Elsewhere { message, owner } => elsewhere(message, owner.as_deref()),
+            Error::Store(StoreError::Unsupported(m)) => Status::failed_precondition(m),
             // Internals are logged here, once, and never shown to the client.
             Error::Store(cause) => {
                 tracing::error!(error = %cause, "store failure");

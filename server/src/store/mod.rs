@@ -142,6 +142,9 @@ pub enum StoreError {
         /// Why.
         source: std::io::Error,
     },
+    /// The store cannot do this; the message says what to use instead.
+    #[error("{0}")]
+    Unsupported(String),
     /// Not written: another replica has claimed the mission since this one
     /// did (see [`lease`]).
     #[error("mission {mission_id} is no longer this replica's: another one claimed it")]

@@ -182,7 +182,7 @@ impl Backend for PostgresBackend {
     }
 
     async fn backup(&self, _path: &Path) -> Result<(), StoreError> {
-        Err(StoreError::Path(format!(
+        Err(StoreError::Unsupported(format!(
             "the store is the PostgreSQL database {}: back it up with PostgreSQL's tools (pg_dump, or the \
              provider's snapshots), which copy it consistently while the executive runs",
             self.shown
@@ -220,6 +220,9 @@ mod tests {
         let verified = format!("{url}?sslmode=verify-full&sslrootcert={ca}");
         let store = PostgresStore::open(&verified, false, None).await.unwrap();
         assert!(store.missions().await.unwrap().is_empty());
+        // Backups are PostgreSQL's own tools' to make: refused, saying so.
+        let refused = store.backup(Path::new("/tmp/never-written.db")).await.unwrap_err();
+        assert!(matches!(&refused, StoreError::Unsupported(why) if why.contains("pg_dump")), "{refused}");
         store.close().await;
         // Other CAs (the system's), none of which signed the server's certificate.
         let refused = PostgresStore::open(&format!("{url}?sslmode=verify-full"), false, None).await;
