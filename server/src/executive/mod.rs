@@ -399,6 +399,11 @@ impl Executive {
         // Reserved before the store is asked, so that simultaneous calls
         // cannot all pass the check; given back if the mission is not made.
         self.usage.reserve(cells, &self.settings)?;
+        // A replica's lease keeper must not claim the new mission before it does.
+        let _claiming = match &self.ownership {
+            Some(ownership) => Some(ownership.claiming().await),
+            None => None,
+        };
         let record = match self.store.create_mission(&spec, Timestamp::now()).await {
             Ok(record) => record,
             Err(e) => {
@@ -408,8 +413,11 @@ impl Executive {
         };
         tracing::info!(mission = record.id, policy = record.spec.policy.name(), cells, "mission created");
         let mut mission = Mission::new(record.clone(), self.settings.clock.now());
-        if let Some(ownership) = &self.ownership {
-            self.claim_new(ownership, &mut mission).await?;
+        if let Some(ownership) = &self.ownership
+            && let Err(e) = self.claim_new(ownership, &mut mission).await
+        {
+            self.usage.release(cells);
+            return Err(e);
         }
         let summary = Self::summary(&mission);
         let cell = Arc::new(MissionCell::new(mission));

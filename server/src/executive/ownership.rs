@@ -59,6 +59,14 @@ impl Ownership {
         }
     }
 
+    /// The right to claim: held from a claim until its mission is in the
+    /// executive's map, so that the lease keeper never claims a mission
+    /// this executive is claiming itself (a second claim would fence the
+    /// first).
+    pub(super) async fn claiming(&self) -> tokio::sync::MutexGuard<'_, ()> {
+        self.claiming.lock().await
+    }
+
     fn held(&self) -> std::sync::MutexGuard<'_, BTreeMap<MissionId, u64>> {
         self.held.lock().unwrap_or_else(|e| e.into_inner())
     }
@@ -72,7 +80,7 @@ impl Executive {
     /// The mission `id`, which this executive does not hold: claimed and
     /// loaded if nobody holds it, otherwise where to ask.
     pub(super) async fn claim_or_point(&self, ownership: &Ownership, id: MissionId) -> Result<Arc<MissionCell>, Error> {
-        let _one_at_a_time = ownership.claiming.lock().await;
+        let _one_at_a_time = ownership.claiming().await;
         if let Some(cell) = self.held_mission(id) {
             return Ok(cell);
         }
@@ -130,7 +138,8 @@ impl Executive {
         Ok(cell)
     }
 
-    /// A mission this executive created: claimed at once.
+    /// A mission this executive created: claimed at once (the caller holds
+    /// [`Ownership::claiming`] until the mission is in its map).
     pub(super) async fn claim_new(&self, ownership: &Ownership, mission: &mut Mission) -> Result<(), Error> {
         let id = mission.record().id;
         let ReplicaSettings { claimant, lease, grace } = &ownership.settings;
