@@ -6,6 +6,10 @@ token: map patches from numpy grids with sequence numbers handled,
 heartbeats, bids, and an iterator over its assignments that reconnects when
 the executive restarts.
 
+Either may be given several addresses: executive replicas sharing one
+database. Calls follow each mission to the replica that holds it, and move
+on to the next replica when one cannot be reached (see :mod:`.replicas`).
+
 The raw stubs stay at hand (``executive.missions``, ``executive.fleet``) with
 the messages in :mod:`exploration_executive.pb` for anything this layer does
 not wrap.
@@ -13,13 +17,10 @@ not wrap.
 
 from __future__ import annotations
 
-import ipaddress
 import math
 import time
-import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from urllib.parse import urlparse
 
 import grpc
 import numpy as np
@@ -28,6 +29,7 @@ from ._proto.exploration.v1 import exploration_pb2 as pb
 from ._proto.exploration.v1 import exploration_pb2_grpc as rpc
 from .maps import MapServerMap
 from .patches import patch_from_grid
+from .replicas import Replicas, addresses_of
 
 #: Answers after which a stream or call is worth trying again: the executive
 #: is restarting, draining, or shedding load.
@@ -45,53 +47,58 @@ class Bid:
     gain_region: tuple[float, float, float, float] | None = None
 
 
-def _channel(address: str, root_certificates: bytes | None) -> tuple[grpc.Channel, str, bool]:
-    """A channel to ``host:port``, ``http://host:port`` or ``https://host:port``."""
-    parsed = urlparse(address if "://" in address else f"http://{address}")
-    if parsed.scheme not in ("http", "https") or not parsed.hostname or not parsed.port:
-        raise ValueError(f"address {address!r}: expected host:port, http://host:port or https://host:port")
-    target = f"{parsed.hostname}:{parsed.port}"
-    if parsed.scheme == "https":
-        credentials = grpc.ssl_channel_credentials(root_certificates=root_certificates)
-        return grpc.secure_channel(target, credentials), parsed.hostname, True
-    return grpc.insecure_channel(target), parsed.hostname, False
-
-
-def _is_loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
 class Executive:
-    """A connection to one executive, for operators and for registering robots.
+    """A connection to one executive (or its replicas), for operators and
+    for registering robots.
 
-    ``token`` is sent as ``authorization: Bearer`` on every call; the
-    executive runs open (no token) only on loopback and in tests. Use an
-    ``https://`` address (with ``root_certificates``, the CA's PEM, for a
+    ``address`` is ``host:port``, ``http(s)://host:port``, or several of
+    them (a sequence, or comma-separated) for executive replicas sharing one
+    database. ``token`` is sent as ``authorization: Bearer`` on every call;
+    the executive runs open (no token) only on loopback and in tests. Use
+    ``https://`` addresses (with ``root_certificates``, the CA's PEM, for a
     private CA) whenever the token crosses a network.
+
+    A call answered UNAVAILABLE is tried again, for up to ``failover_s``
+    seconds, at the replica that answer named as the mission's holder or
+    else at the next address: a replica that died is replaced by another
+    once its lease on the mission has run out, and a lone executive that
+    restarts answers again. ``create_mission`` is not tried again after an
+    UNAVAILABLE that named no holder (it may have been carried out); the
+    next call goes to the next address.
     """
 
     def __init__(
         self,
-        address: str,
+        address: str | Sequence[str],
         token: str | None = None,
         *,
         root_certificates: bytes | None = None,
         timeout_s: float = 10.0,
+        failover_s: float = 30.0,
+        _current: str | None = None,
     ) -> None:
-        self._channel, host, tls = _channel(address, root_certificates)
-        if token and not tls and not _is_loopback(host):
-            warnings.warn(f"the token crosses the network to {host} in plaintext: use https://", stacklevel=2)
-        self._address, self._root_certificates = address, root_certificates
+        self._addresses = addresses_of(address)
+        self._replicas = Replicas(self._addresses, root_certificates, token_sent=bool(token), current=_current)
+        self._root_certificates = root_certificates
         self.token = token
         self.timeout_s = timeout_s
+        self.failover_s = failover_s
         self.closed = False
-        self.missions = rpc.MissionsStub(self._channel)
-        self.fleet = rpc.FleetStub(self._channel)
+
+    @property
+    def missions(self) -> rpc.MissionsStub:
+        """The raw Missions stub of the replica the calls go to now."""
+        return self._replicas.missions
+
+    @property
+    def fleet(self) -> rpc.FleetStub:
+        """The raw Fleet stub of the replica the calls go to now."""
+        return self._replicas.fleet
+
+    @property
+    def address(self) -> str:
+        """The replica the calls go to now."""
+        return self._replicas.current
 
     @property
     def metadata(self) -> tuple[tuple[str, str], ...]:
@@ -99,7 +106,7 @@ class Executive:
 
     def close(self) -> None:
         self.closed = True
-        self._channel.close()
+        self._replicas.close()
 
     def __enter__(self) -> "Executive":
         return self
@@ -107,8 +114,30 @@ class Executive:
     def __exit__(self, *_: object) -> None:
         self.close()
 
-    def _call(self, method, request):  # noqa: ANN001, ANN202 - any unary stub method
-        return method(request, metadata=self.metadata, timeout=self.timeout_s)
+    def _call(self, service: str, method: str, request, *, idempotent: bool = True):  # noqa: ANN001, ANN202
+        """``service.method(request)`` at the replica the calls go to now,
+        tried again elsewhere as the class says."""
+        deadline = time.monotonic() + self.failover_s
+        backoff, followed = 0.05, set()
+        while True:
+            stub = getattr(self._replicas.missions if service == "missions" else self._replicas.fleet, method)
+            try:
+                return stub(request, metadata=self.metadata, timeout=self.timeout_s)
+            except grpc.RpcError as error:
+                if error.code() != grpc.StatusCode.UNAVAILABLE or self.closed:
+                    raise
+                named = self._replicas.follow(error)
+                if (not named and not idempotent) or time.monotonic() >= deadline:
+                    raise
+                # A holder named for the first time is asked at once; a dead
+                # holder the others still name (its lease has not run out)
+                # and an executive that does not answer are asked again
+                # after a pause.
+                if named and self._replicas.current not in followed:
+                    followed.add(self._replicas.current)
+                    continue
+                time.sleep(backoff)
+                backoff = min(1.0, backoff * 2)
 
     # Missions -----------------------------------------------------------
 
@@ -130,16 +159,16 @@ class Executive:
             policy=pb.PolicySpec(name=policy, params=params or {}),
             lockstep=lockstep,
         )
-        return self._call(self.missions.CreateMission, request)
+        return self._call("missions", "CreateMission", request, idempotent=False)
 
     def mission(self, mission_id: int) -> pb.Mission:
-        return self._call(self.missions.GetMission, pb.GetMissionRequest(mission_id=mission_id))
+        return self._call("missions", "GetMission", pb.GetMissionRequest(mission_id=mission_id))
 
     def list_missions(self) -> list[pb.Mission]:
-        return list(self._call(self.missions.ListMissions, pb.ListMissionsRequest()).missions)
+        return list(self._call("missions", "ListMissions", pb.ListMissionsRequest()).missions)
 
     def robots(self, mission_id: int) -> list[pb.Robot]:
-        return list(self._call(self.missions.ListRobots, pb.ListRobotsRequest(mission_id=mission_id)).robots)
+        return list(self._call("missions", "ListRobots", pb.ListRobotsRequest(mission_id=mission_id)).robots)
 
     def events(self, mission_id: int, *, page_size: int = 0) -> Iterator[pb.MissionEvent]:
         """Every event of the mission, oldest first, read a page at a time
@@ -147,7 +176,7 @@ class Executive:
         after_id = 0
         while True:
             request = pb.ListEventsRequest(mission_id=mission_id, limit=page_size, after_id=after_id)
-            page = self._call(self.missions.ListEvents, request)
+            page = self._call("missions", "ListEvents", request)
             yield from page.events
             if page.next_after_id == 0:
                 return
@@ -189,7 +218,7 @@ class Executive:
             request.release.SetInParent()
         else:
             request.cancel.SetInParent()
-        return self._call(self.missions.OverrideRobot, request)
+        return self._call("missions", "OverrideRobot", request)
 
     # Robots ---------------------------------------------------------------
 
@@ -216,14 +245,16 @@ class Executive:
             ),
             pose=pb.Pose(x=pose[0], y=pose[1], theta=pose[2]),
         )
-        response = self._call(self.fleet.RegisterRobot, request)
+        response = self._call("fleet", "RegisterRobot", request)
         # An executive that runs open issues no tokens: the robot speaks as
         # the connection does.
         session = Executive(
-            self._address,
+            self._addresses,
             response.token or self.token,
             root_certificates=self._root_certificates,
             timeout_s=self.timeout_s,
+            failover_s=self.failover_s,
+            _current=self._replicas.current,
         )
         return Robot(session, response.robot)
 
@@ -264,7 +295,7 @@ class Robot:
             robot_id=self.id, seq=self._seq, pose=pb.Pose(x=pose[0], y=pose[1], theta=pose[2]), patches=[patch]
         )
         try:
-            return self._session._call(self._session.fleet.UpdateMap, request)
+            return self._session._call("fleet", "UpdateMap", request)
         except grpc.RpcError as error:
             if error.code() == grpc.StatusCode.ALREADY_EXISTS:
                 assignment = self.assignment()
@@ -296,7 +327,7 @@ class Robot:
             task_id=task_id,
             reason=reason,
         )
-        return self._session._call(self._session.fleet.Heartbeat, request).assignment
+        return self._session._call("fleet", "Heartbeat", request).assignment
 
     def submit_bids(self, bids: Sequence[Bid]) -> pb.SubmitBidsResponse:
         """Replaces this robot's bids (for bidding policies such as ``simmons``)."""
@@ -310,20 +341,22 @@ class Robot:
                 message.gain_region.CopyFrom(pb.Rect(min_x=x0, min_y=y0, max_x=x1, max_y=y1))
             messages.append(message)
         request = pb.SubmitBidsRequest(robot_id=self.id, bids=messages)
-        return self._session._call(self._session.fleet.SubmitBids, request)
+        return self._session._call("fleet", "SubmitBids", request)
 
     def assignment(self) -> pb.Assignment:
         """The current assignment."""
-        return self._session._call(self._session.fleet.GetAssignment, pb.GetAssignmentRequest(robot_id=self.id))
+        return self._session._call("fleet", "GetAssignment", pb.GetAssignmentRequest(robot_id=self.id))
 
     def assignments(self, *, max_backoff_s: float = 5.0) -> Iterator[pb.Assignment]:
         """Every assignment from now on, the current one first.
 
         When the stream ends or breaks because the executive stopped,
-        restarted or shed load, it waits (0.1 s, doubling up to ``max_backoff_s``) and
-        reconnects; the current assignment is sent again on reconnection,
-        so a change made meanwhile is not missed. It ends when the robot is
-        closed; other errors are raised.
+        restarted or shed load, it waits (0.1 s, doubling up to
+        ``max_backoff_s``) and reconnects, to the next replica given if
+        there are several; when its replica names another as the mission's
+        holder, it reconnects there at once. The current assignment is sent
+        again on reconnection, so a change made meanwhile is not missed. It
+        ends when the robot is closed; other errors are raised.
         """
         backoff = 0.1
         while True:
@@ -340,6 +373,8 @@ class Robot:
                     return
                 if error.code() not in RETRYABLE:
                     raise
+                if self._session._replicas.follow(error):
+                    continue  # another replica holds the mission: ask it at once
             finally:
                 stream.cancel()
             time.sleep(backoff)
