@@ -2,7 +2,8 @@
 //! `EXPLORATION_POSTGRES_URL` names a server; `.ci/run` starts one): a
 //! fleet's mission survives the replica that holds it killed with SIGKILL
 //! three times, a different replica each time; a replica paused past its
-//! lease cannot write for the mission once another has taken it.
+//! lease cannot write for the mission once another has taken it; replicas
+//! that start or stop share the missions evenly again.
 
 mod common;
 
@@ -247,4 +248,96 @@ async fn a_replica_paused_past_its_lease_cannot_write_and_gives_the_mission_up()
     // B carries on where it was.
     let next = fleet_b.update_map(update(robot.id, 3, 0.55, 0.55, vec![])).await.unwrap().into_inner();
     assert_eq!(next.applied_seq, 3);
+}
+
+/// How many missions each replica holds now, by name.
+async fn holdings(db: &mut sqlx::PgConnection) -> Vec<(String, i64)> {
+    sqlx::query_as(
+        "SELECT owner, COUNT(*) FROM mission_leases WHERE expires_at > (EXTRACT(EPOCH FROM now()) * 1000)::BIGINT
+         GROUP BY owner ORDER BY owner",
+    )
+    .fetch_all(db)
+    .await
+    .unwrap()
+}
+
+/// The sum of every mission's fencing token: it grows by one at each claim.
+async fn claims(db: &mut sqlx::PgConnection) -> i64 {
+    sqlx::query_scalar("SELECT COALESCE(SUM(token), 0)::BIGINT FROM mission_leases").fetch_one(db).await.unwrap()
+}
+
+/// When each replica named announced itself last runs out, by name.
+async fn announcements(db: &mut sqlx::PgConnection, names: &[&str]) -> Vec<i64> {
+    let names: Vec<String> = names.iter().map(|n| (*n).to_owned()).collect();
+    sqlx::query_scalar("SELECT expires_at FROM replicas WHERE id = ANY($1) ORDER BY id")
+        .bind(&names)
+        .fetch_all(db)
+        .await
+        .unwrap()
+}
+
+/// Waits until every replica named has announced itself `rounds` more times.
+async fn keeper_rounds(db: &mut sqlx::PgConnection, names: &[&str], rounds: usize) {
+    let mut last = announcements(db, names).await;
+    let mut seen = vec![0; names.len()];
+    let start = Instant::now();
+    while seen.iter().any(|&s| s < rounds) {
+        assert!(start.elapsed() < Duration::from_secs(30), "the replicas stopped announcing themselves");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        let now = announcements(db, names).await;
+        for (i, (before, after)) in last.iter().zip(&now).enumerate() {
+            if after > before {
+                seen[i] += 1;
+            }
+        }
+        last = now;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn replicas_share_the_missions_evenly_as_they_come_and_go() {
+    let Some(url) = common::postgres_database("replicas_share").await else { return };
+    let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
+    // Alone, r1 creates and holds six missions.
+    let r1 = Replica::spawn("r1", free_port(), &url, "1", "0.25");
+    wait_until_serving(&r1.url(), Duration::from_secs(30)).await;
+    let mut missions = MissionsClient::new(channel_to(&r1));
+    for _ in 0..6 {
+        create_mission(&mut missions, 20, 20, "nearest").await;
+    }
+    assert_eq!(holdings(&mut db).await, vec![("r1".to_owned(), 6)]);
+
+    // Two more start: r1 hands on what is beyond its share, and they take it.
+    let r2 = Replica::spawn("r2", free_port(), &url, "1", "0.25");
+    let r3 = Replica::spawn("r3", free_port(), &url, "1", "0.25");
+    let even = |n: i64| vec![("r1".to_owned(), n), ("r2".to_owned(), n), ("r3".to_owned(), n)];
+    let start = Instant::now();
+    while holdings(&mut db).await != even(2) {
+        assert!(start.elapsed() < Duration::from_secs(20), "not shared evenly: {:?}", holdings(&mut db).await);
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // Once even, it stays so: no mission changes hands in later rounds.
+    let settled = claims(&mut db).await;
+    keeper_rounds(&mut db, &["r1", "r2", "r3"], 3).await;
+    assert_eq!((claims(&mut db).await, holdings(&mut db).await), (settled, even(2)));
+    // Each mission answers at its holder.
+    for mission in 1..=6 {
+        let (owner, _) = holder(&mut db, mission).await.unwrap();
+        let replica = [&r1, &r2, &r3].into_iter().find(|r| r.id == owner).unwrap();
+        let mut client = MissionsClient::new(channel_to(replica));
+        let request = exploration_proto::v1::GetMissionRequest { mission_id: mission as u64 };
+        client.get_mission(request).await.unwrap_or_else(|e| panic!("mission {mission} at {owner}: {e:?}"));
+    }
+
+    // r3 stops (SIGTERM): it withdraws, and r1 and r2 take three each.
+    r3.signal("-TERM");
+    let start = Instant::now();
+    while holdings(&mut db).await != vec![("r1".to_owned(), 3), ("r2".to_owned(), 3)] {
+        assert!(start.elapsed() < Duration::from_secs(20), "r3's missions not taken: {:?}", holdings(&mut db).await);
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+fn channel_to(replica: &Replica) -> tonic::transport::Channel {
+    tonic::transport::Endpoint::from_shared(replica.url()).unwrap().connect_lazy()
 }

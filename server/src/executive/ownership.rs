@@ -11,9 +11,21 @@
 //! clients follow. The lease keeper renews the held leases a few times per
 //! lease period and lets go of any mission whose lease another replica has
 //! taken (a write fenced meanwhile fails and is retried there).
+//!
+//! The replicas share the missions evenly. Each round the keeper also
+//! announces its replica alive in the store and learns how many are alive;
+//! a replica claims missions nobody holds only while it holds fewer than
+//! its fair share (the missions divided by the replicas, rounded up) and
+//! hands on, by releasing their leases, those it holds beyond it, so that a
+//! replica that starts, or comes back, takes its part instead of idling
+//! while another carries every mission. A mission that stays unclaimed for
+//! a whole lease period (its fair shares are full, or a replica cannot load
+//! it) is taken by any replica, share or not: no mission is left without a
+//! holder.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use tokio_util::sync::CancellationToken;
@@ -47,6 +59,11 @@ pub(super) struct Ownership {
     claiming: tokio::sync::Mutex<()>,
     /// When the leases were last renewed.
     renewed: std::sync::Mutex<Instant>,
+    /// The most missions this replica should hold, from its last
+    /// announcement (no limit before the first).
+    fair: AtomicU64,
+    /// The missions nobody held at the last rounds, and since when.
+    unclaimed_since: std::sync::Mutex<HashMap<MissionId, Instant>>,
 }
 
 impl Ownership {
@@ -56,6 +73,26 @@ impl Ownership {
             held: std::sync::Mutex::default(),
             claiming: tokio::sync::Mutex::default(),
             renewed: std::sync::Mutex::new(Instant::now()),
+            fair: AtomicU64::new(u64::MAX),
+            unclaimed_since: std::sync::Mutex::default(),
+        }
+    }
+
+    /// Whether this replica should claim `id`, which nobody holds: it holds
+    /// fewer missions than its share, or `id` has waited a whole lease
+    /// period for a holder.
+    fn should_claim(&self, id: MissionId) -> bool {
+        let held = self.held().len() as u64;
+        let waited = self.unclaimed_since.lock().unwrap_or_else(|e| e.into_inner()).get(&id).map(Instant::elapsed);
+        held < self.fair.load(Ordering::Relaxed) || waited.is_some_and(|w| w >= self.settings.lease)
+    }
+
+    /// Remembers since when each of `unclaimed` has had no holder.
+    fn note_unclaimed(&self, unclaimed: &[MissionId]) {
+        let mut since = self.unclaimed_since.lock().unwrap_or_else(|e| e.into_inner());
+        since.retain(|id, _| unclaimed.contains(id));
+        for &id in unclaimed {
+            since.entry(id).or_insert_with(Instant::now);
         }
     }
 
@@ -88,20 +125,34 @@ impl Executive {
             return Err(Error::NotFound(format!("mission {id} does not exist; ListMissions shows the missions")));
         };
         let ReplicaSettings { claimant, lease, grace } = &ownership.settings;
+        if !ownership.should_claim(id) && !self.held_before(ownership, id).await? {
+            // Over its share: left to a replica under its own.
+            return Err(self.pointer(id).await);
+        }
         match self.store.claim(id, claimant, Timestamp::now(), *lease, *grace).await? {
             Some(lease) => self.adopt(ownership, record, lease).await,
             None => Err(self.pointer(id).await),
         }
     }
 
+    /// Whether the lease of `id` names this replica: it held the mission
+    /// before it restarted, and claims it back at once whatever its share.
+    async fn held_before(&self, ownership: &Ownership, id: MissionId) -> Result<bool, Error> {
+        let lease = self.store.lease(id).await?;
+        Ok(lease.is_some_and(|l| l.owner == ownership.settings.claimant.id && l.expires_at > Timestamp::now()))
+    }
+
     /// Where to ask for a mission another replica holds.
     async fn pointer(&self, id: MissionId) -> Error {
         match self.store.lease(id).await {
-            Ok(Some(lease)) => Error::Elsewhere {
+            Ok(Some(lease)) if lease.expires_at > Timestamp::now() => Error::Elsewhere {
                 message: format!("mission {id} is held by the replica {} at {}: ask there", lease.owner, lease.address),
                 owner: Some(lease.address),
             },
-            _ => Error::Elsewhere { message: format!("mission {id} is changing hands: retry shortly"), owner: None },
+            _ => Error::Elsewhere {
+                message: format!("mission {id} is changing hands: retry shortly, or ask another replica"),
+                owner: None,
+            },
         }
     }
 
@@ -156,6 +207,12 @@ impl Executive {
     /// and, once the requests under way end, its robots' streams close, so
     /// that they reconnect and are pointed to the new holder.
     fn give_up(&self, ownership: &Ownership, id: MissionId) {
+        self.stop_holding(ownership, id);
+        tracing::warn!(mission = id, "mission given up: another replica holds it now");
+    }
+
+    /// Stops acting for a mission (see [`Self::give_up`]).
+    fn stop_holding(&self, ownership: &Ownership, id: MissionId) {
         ownership.held().remove(&id);
         let cell = self.missions.write().unwrap_or_else(|e| e.into_inner()).remove(&id);
         self.robot_missions.write().unwrap_or_else(|e| e.into_inner()).retain(|_, m| *m != id);
@@ -163,11 +220,29 @@ impl Executive {
             cell.retire();
             self.usage.release(cell.cells());
         }
-        tracing::warn!(mission = id, "mission given up: another replica holds it now");
+    }
+
+    /// Releases the leases of the missions held beyond `fair`, the newest
+    /// first, for the replicas under their share to claim.
+    async fn hand_on_excess(&self, ownership: &Ownership, fair: u64) {
+        let fences = ownership.fences();
+        let excess = (fences.len() as u64).saturating_sub(fair) as usize;
+        for fence in fences.into_iter().rev().take(excess) {
+            self.stop_holding(ownership, fence.mission_id);
+            match self.store.release(fence).await {
+                Ok(()) => {
+                    tracing::info!(mission = fence.mission_id, "mission handed on: more than this replica's share")
+                }
+                Err(e) => {
+                    tracing::warn!(mission = fence.mission_id, error = %e, "a lease handed on is left to run out")
+                }
+            }
+        }
     }
 
     /// One round of the lease keeper: renews the held leases, lets go of
-    /// those another replica took, and claims the missions nobody holds.
+    /// those another replica took, announces this replica, hands on the
+    /// missions beyond its share and claims, up to it, those nobody holds.
     pub async fn keep_leases(&self) -> Result<(), Error> {
         let Some(ownership) = &self.ownership else { return Ok(()) };
         let held = ownership.fences();
@@ -190,8 +265,14 @@ impl Executive {
         for fence in held.iter().filter(|f| !renewed.contains(&f.mission_id)) {
             self.give_up(ownership, fence.mission_id);
         }
-        for id in self.store.unclaimed(Timestamp::now(), ownership.settings.grace).await? {
+        let share = self.store.announce(&ownership.settings.claimant, Timestamp::now(), period).await?;
+        ownership.fair.store(share.fair(), Ordering::Relaxed);
+        self.hand_on_excess(ownership, share.fair()).await;
+        let unclaimed = self.store.unclaimed(Timestamp::now(), ownership.settings.grace).await?;
+        ownership.note_unclaimed(&unclaimed);
+        for id in unclaimed {
             if self.held_mission(id).is_none()
+                && ownership.should_claim(id)
                 && let Err(e) = self.claim_or_point(ownership, id).await
             {
                 tracing::debug!(mission = id, error = %e, "an unclaimed mission was not taken");
@@ -200,9 +281,13 @@ impl Executive {
         self.refresh_tokens().await
     }
 
-    /// Hands every held mission on at once (a graceful stop).
+    /// Hands every held mission on at once (a graceful stop), and
+    /// withdraws this replica from the others' shares.
     pub async fn release_leases(&self) {
         let Some(ownership) = &self.ownership else { return };
+        if let Err(e) = self.store.announce(&ownership.settings.claimant, Timestamp::now(), Duration::ZERO).await {
+            tracing::warn!(error = %e, "this replica's announcement is left to run out");
+        }
         for fence in ownership.fences() {
             if let Err(e) = self.store.release(fence).await {
                 tracing::warn!(mission = fence.mission_id, error = %e, "a lease was left to run out");

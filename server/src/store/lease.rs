@@ -49,6 +49,24 @@ pub struct Fence {
     pub token: u64,
 }
 
+/// How many replicas are alive and how many missions they share, as a
+/// replica's announcement finds them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Share {
+    /// Replicas whose announcement has not run out, the announcer among them.
+    pub replicas: u64,
+    /// Every mission in the database.
+    pub missions: u64,
+}
+
+impl Share {
+    /// The most missions one replica should hold: the missions divided
+    /// evenly, rounded up.
+    pub fn fair(&self) -> u64 {
+        self.missions.div_ceil(self.replicas.max(1))
+    }
+}
+
 /// A replica, as its leases name it.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Claimant {

@@ -16,7 +16,7 @@ use crate::domain::{
 use exploration::fusion::{MapFusion, Patch};
 use exploration::grid::{Cell, GridFrame};
 use exploration::policy::PolicyConfig;
-pub use lease::{Claimant, Fence, Lease};
+pub use lease::{Claimant, Fence, Lease, Share};
 
 pub mod compact;
 pub mod lease;
@@ -504,6 +504,16 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// Missions nobody holds: never claimed, or whose lease ran out more
     /// than `grace` before `now`.
     async fn unclaimed(&self, now: Timestamp, grace: std::time::Duration) -> Result<Vec<MissionId>, StoreError>;
+
+    /// Announces `claimant` alive until `now + period` (a zero period
+    /// withdraws it) and tells how many replicas are alive at `now` and how
+    /// many missions they share.
+    async fn announce(
+        &self,
+        claimant: &Claimant,
+        now: Timestamp,
+        period: std::time::Duration,
+    ) -> Result<Share, StoreError>;
 
     /// A new block of identities for `owner` (see `id_blocks`): its number,
     /// 1 and up.

@@ -12,8 +12,8 @@ use crate::domain::{
 };
 use crate::store::sqlite::Durability;
 use crate::store::{
-    Changeset, Claimant, FailureKind, Fence, Location, LoggedPatch, MapSnapshot, MissionCounters, Store, StoreError,
-    TaskChange, TaskFilter, compact,
+    Changeset, Claimant, FailureKind, Fence, Location, LoggedPatch, MapSnapshot, MissionCounters, Share, Store,
+    StoreError, TaskChange, TaskFilter, compact,
 };
 use exploration::fusion::Patch;
 use exploration::grid::{Cell, CellRect, GridFrame};
@@ -82,6 +82,7 @@ on_both_engines!(
     what_follows_a_refused_changeset_is_not_written,
     a_folded_patch_log_restores_the_same_map,
     a_lease_passes_on_only_once_it_ran_out_and_fences_its_old_holder,
+    replicas_are_counted_while_their_announcements_last,
 );
 
 pub(crate) const HASH: &str = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
@@ -576,4 +577,30 @@ async fn a_lease_passes_on_only_once_it_ran_out_and_fences_its_old_holder(db: Te
         store.reserve_id_block("b", Timestamp(1)).await.unwrap(),
     ];
     assert!(blocks[0] >= 1 && blocks[1] > blocks[0], "{blocks:?}");
+}
+
+/// A replica's announcement counts it alive until it runs out or is
+/// withdrawn; every mission counts towards the share, held or not.
+async fn replicas_are_counted_while_their_announcements_last(db: TestDb) {
+    let store = db.open().await;
+    let (a, b) = (
+        Claimant { id: "a".into(), address: "http://a:1".into() },
+        Claimant { id: "b".into(), address: "http://b:1".into() },
+    );
+    let period = Duration::from_secs(5);
+    let alone = store.announce(&a, Timestamp(1_000), period).await.unwrap();
+    assert_eq!(alone, Share { replicas: 1, missions: 0 });
+    for _ in 0..5 {
+        store.create_mission(&spec(), Timestamp(1)).await.unwrap();
+    }
+    let both = store.announce(&b, Timestamp(2_000), period).await.unwrap();
+    assert_eq!(both, Share { replicas: 2, missions: 5 });
+    assert_eq!(both.fair(), 3);
+    // a's announcement ran out at 6 000: b is alone, and takes everything.
+    let later = store.announce(&b, Timestamp(6_000), period).await.unwrap();
+    assert_eq!((later.replicas, later.fair()), (1, 5));
+    // Renewed, then withdrawn (a replica that stops).
+    assert_eq!(store.announce(&a, Timestamp(6_500), period).await.unwrap().replicas, 2);
+    assert_eq!(store.announce(&a, Timestamp(6_600), Duration::ZERO).await.unwrap().replicas, 1);
+    assert_eq!(store.announce(&b, Timestamp(6_700), period).await.unwrap().replicas, 1);
 }

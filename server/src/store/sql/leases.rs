@@ -6,7 +6,10 @@ use super::SqlStore;
 use super::rows;
 use super::statement::{Backend, Statement, Transaction};
 use crate::domain::{MissionId, Timestamp};
-use crate::store::{Claimant, Fence, Lease, StoreError};
+use crate::store::{Claimant, Fence, Lease, Share, StoreError};
+
+/// How long a replica that stopped announcing itself stays in `replicas`.
+const FORGET_AFTER_MS: i64 = 24 * 3600 * 1000;
 
 /// `now + period`, in the milliseconds leases are kept in.
 fn until(now: Timestamp, period: Duration) -> i64 {
@@ -93,6 +96,36 @@ impl<B: Backend> SqlStore<B> {
         );
         let rows = self.backend.fetch_all(select.int(claimable_before(now, grace))).await?;
         rows.iter().map(|row| rows::identity(row, "missions", "n")).collect()
+    }
+
+    pub(super) async fn announce_replica(
+        &self,
+        claimant: &Claimant,
+        now: Timestamp,
+        period: Duration,
+    ) -> Result<Share, StoreError> {
+        let announce = Statement::new(
+            "INSERT INTO replicas (id, address, expires_at) VALUES ($1, $2, $3)
+             ON CONFLICT (id) DO UPDATE SET address = excluded.address, expires_at = excluded.expires_at",
+        )
+        .text(&claimant.id)
+        .text(&claimant.address)
+        .int(until(now, period));
+        let count = Statement::new(
+            "SELECT (SELECT COUNT(*) FROM replicas WHERE expires_at > $1) AS replicas,
+                    (SELECT COUNT(*) FROM missions) AS missions",
+        )
+        .int(now.millis());
+        // Replicas gone for a day are forgotten (on Kubernetes every pod
+        // has a new name).
+        let forget = Statement::new("DELETE FROM replicas WHERE expires_at < $1")
+            .int(now.millis().saturating_sub(FORGET_AFTER_MS));
+        let mut tx = self.backend.begin_write().await?;
+        tx.execute(forget).await?;
+        tx.execute(announce).await?;
+        let row = tx.fetch_one(count).await?;
+        tx.commit().await?;
+        rows::share_from_row(&row)
     }
 
     pub(super) async fn new_id_block(&self, owner: &str, now: Timestamp) -> Result<u64, StoreError> {

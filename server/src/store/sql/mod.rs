@@ -22,7 +22,7 @@ use std::time::Duration;
 
 use async_trait::async_trait;
 
-use super::{Changeset, Claimant, CommitId, Fence, Lease, Store, StoreError, StoredMap, Submitted, TaskFilter};
+use super::{Changeset, Claimant, CommitId, Fence, Lease, Share, Store, StoreError, StoredMap, Submitted, TaskFilter};
 use crate::domain::{
     Bid, BlacklistEntry, MissionEvent, MissionId, MissionRecord, MissionSpec, Region, RobotId, RobotRecord, RobotSpec,
     Rooms, StoredSegmentation, TaskId, TaskKind, TaskRecord, Timestamp, Transition,
@@ -262,6 +262,10 @@ impl<B: Backend> Store for SqlStore<B> {
 
     async fn unclaimed(&self, now: Timestamp, grace: Duration) -> Result<Vec<MissionId>, StoreError> {
         self.unclaimed_missions(now, grace).await
+    }
+
+    async fn announce(&self, claimant: &Claimant, now: Timestamp, period: Duration) -> Result<Share, StoreError> {
+        self.announce_replica(claimant, now, period).await
     }
 
     async fn reserve_id_block(&self, owner: &str, now: Timestamp) -> Result<u64, StoreError> {

@@ -14,7 +14,7 @@ use crate::domain::{
     MissionState, Pose, Region, ReplanSettings, RobotId, RobotRecord, RobotState, Rooms, StoredSegmentation, TaskId,
     TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
-use crate::store::{Lease, LoggedPatch, MapSnapshot, StoreError};
+use crate::store::{Lease, LoggedPatch, MapSnapshot, Share, StoreError};
 use crate::validate::{self, Invalid};
 use exploration::fusion::Patch;
 use exploration::grid::{Cell, CellRect, GridFrame};
@@ -512,6 +512,12 @@ fn decode_cells(at: &At, stored: Vec<u8>, format: i64, count: u64) -> Result<Vec
 /// An identity (1 and up) in column `column` of a row of `table`.
 pub(super) fn identity(row: &impl Columns, table: &str, column: &str) -> Result<u64, StoreError> {
     At::row(table, row, column)?.id_column(row, column)
+}
+
+/// How many replicas are alive and how many missions they share.
+pub(super) fn share_from_row(row: &impl Columns) -> Result<Share, StoreError> {
+    let at = At { table: "replicas", id: 0 };
+    Ok(Share { replicas: at.count(row, "replicas")?, missions: at.count(row, "missions")? })
 }
 
 /// A mission's lease.
