@@ -5,11 +5,12 @@ with its database in the test's temporary folder."""
 from __future__ import annotations
 
 import os
+import queue
 import signal
 import socket
 import subprocess
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import grpc
@@ -121,3 +122,18 @@ def wait_for(predicate, what: str, within_s: float = 30.0):  # noqa: ANN001, ANN
             return value
         time.sleep(0.05)
     raise AssertionError(f"timed out waiting for {what}")
+
+
+def goto_from(received: queue.Queue) -> Callable[[], object]:
+    """A predicate for :func:`wait_for`: the next GOTO assignment taken from
+    ``received`` (a queue an assignment iterator fills), or ``None``."""
+    from exploration_executive import pb
+
+    def goto_arrived():  # noqa: ANN202
+        try:
+            a = received.get(timeout=1)
+        except queue.Empty:
+            return None
+        return a if a.kind == pb.TASK_KIND_GOTO else None
+
+    return goto_arrived

@@ -10,7 +10,7 @@ import threading
 import grpc
 import numpy as np
 import pytest
-from conftest import REPOSITORY, TOKEN, Coordinator, wait_for
+from conftest import REPOSITORY, TOKEN, Coordinator, goto_from, wait_for
 
 from exploration_executive import Executive, MapServerMap, patch_from_grid, pb
 
@@ -121,14 +121,7 @@ def test_the_assignment_iterator_survives_an_executive_killed_and_restarted(coor
     operator = Executive(coordinator.address, TOKEN)
     operator.override_robot(robot.id, goto=(5.0, 1.0), reason="after the restart")
 
-    def goto_arrived() -> pb.Assignment | None:
-        try:
-            a = received.get(timeout=1)
-        except queue.Empty:
-            return None
-        return a if a.kind == pb.TASK_KIND_GOTO else None
-
-    after = wait_for(goto_arrived, "the override, through the reconnected stream")
+    after = wait_for(goto_from(received), "the override, through the reconnected stream")
     assert (after.target.x, after.target.y) == pytest.approx((5.0, 1.0), abs=0.1)
     robot.close()
     operator.close()

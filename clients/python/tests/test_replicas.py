@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import coordinator_binary, free_port, wait_for
+from conftest import coordinator_binary, free_port, goto_from, wait_for
 from exploration_executive import Executive, pb
 from test_client import frame
 
@@ -95,14 +95,7 @@ def test_the_client_follows_the_mission_to_its_holder_and_through_its_death(repl
     # The assignment stream reconnected to b: an override made there arrives.
     operator.override_robot(robot.id, goto=(5.0, 1.0), reason="after the failover")
 
-    def goto_arrived() -> pb.Assignment | None:
-        try:
-            x = received.get(timeout=1)
-        except queue.Empty:
-            return None
-        return x if x.kind == pb.TASK_KIND_GOTO else None
-
-    after = wait_for(goto_arrived, "the override, through the stream reconnected to the new holder")
+    after = wait_for(goto_from(received), "the override, through the stream reconnected to the new holder")
     assert (after.target.x, after.target.y) == pytest.approx((5.0, 1.0), abs=0.1)
     robot.close()
     operator.close()
