@@ -9,6 +9,7 @@ import queue
 import signal
 import socket
 import subprocess
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -122,6 +123,20 @@ def wait_for(predicate, what: str, within_s: float = 30.0):  # noqa: ANN001, ANN
             return value
         time.sleep(0.05)
     raise AssertionError(f"timed out waiting for {what}")
+
+
+def follow_assignments(robot) -> tuple[queue.Queue, object]:  # noqa: ANN001
+    """Follows ``robot.assignments()`` on a thread into a queue; returns the
+    queue and the first assignment with a task."""
+    received: queue.Queue = queue.Queue()
+
+    def follow() -> None:
+        for assignment in robot.assignments(max_backoff_s=0.5):
+            received.put(assignment)
+
+    threading.Thread(target=follow, daemon=True).start()
+    first = wait_for(lambda: next((a for a in iter(received.get, None) if a.task_id), None), "a first task")
+    return received, first
 
 
 def goto_from(received: queue.Queue) -> Callable[[], object]:

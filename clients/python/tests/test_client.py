@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import queue
 import subprocess
 import sys
-import threading
 
 import grpc
 import numpy as np
 import pytest
-from conftest import REPOSITORY, TOKEN, Coordinator, goto_from, wait_for
+from conftest import REPOSITORY, TOKEN, Coordinator, follow_assignments, goto_from, wait_for
 
 from exploration_executive import Executive, MapServerMap, patch_from_grid, pb
 
@@ -105,14 +103,7 @@ def test_the_assignment_iterator_survives_an_executive_killed_and_restarted(coor
     robot = operator.register_robot(mission.id, "r1", (0.5, 0.5, 0.0))
     # Free cells with unknown beyond: a frontier for the robot to explore.
     robot.update_map(np.full((10, 10), 0.05), (0, 0), (0.5, 0.5, 0.0))
-    received: queue.Queue[pb.Assignment] = queue.Queue()
-
-    def follow() -> None:
-        for assignment in robot.assignments(max_backoff_s=0.5):
-            received.put(assignment)
-
-    threading.Thread(target=follow, daemon=True).start()
-    first = wait_for(lambda: next((a for a in iter(received.get, None) if a.task_id), None), "a first task")
+    received, first = follow_assignments(robot)
     assert first.kind == pb.TASK_KIND_EXPLORE
 
     coordinator.kill()

@@ -10,16 +10,16 @@ names a server, as `.ci/run` does); skipped, saying so, elsewhere.
 from __future__ import annotations
 
 import os
-import queue
 import subprocess
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
+import grpc
 import numpy as np
 import pytest
-from conftest import coordinator_binary, free_port, goto_from, wait_for
+from conftest import coordinator_binary, follow_assignments, free_port, goto_from, wait_for
 from exploration_executive import Executive, pb
+from exploration_executive.replicas import Replicas, addresses_of
 from test_client import frame
 
 DATABASE = os.environ.get("EXPLORATION_REPLICAS_DB")
@@ -74,14 +74,7 @@ def test_the_client_follows_the_mission_to_its_holder_and_through_its_death(repl
     robot = operator.register_robot(mission.id, "r1", (0.5, 0.5, 0.0))
     assert operator.address == a.url
     robot.update_map(np.full((10, 10), 0.05), (0, 0), (0.5, 0.5, 0.0))
-    received: queue.Queue[pb.Assignment] = queue.Queue()
-
-    def follow() -> None:
-        for assignment in robot.assignments(max_backoff_s=0.5):
-            received.put(assignment)
-
-    threading.Thread(target=follow, daemon=True).start()
-    wait_for(lambda: next((x for x in iter(received.get, None) if x.task_id), None), "a first task")
+    received, _ = follow_assignments(robot)
 
     # The holder dies; b claims the mission once a's lease has run out, and
     # the robot's next update, retried meanwhile, is applied there.
@@ -99,3 +92,32 @@ def test_the_client_follows_the_mission_to_its_holder_and_through_its_death(repl
     assert (after.target.x, after.target.y) == pytest.approx((5.0, 1.0), abs=0.1)
     robot.close()
     operator.close()
+
+
+class _Unavailable(grpc.RpcError):
+    """An UNAVAILABLE answer whose trailers name ``owner``."""
+
+    def __init__(self, owner: str) -> None:
+        self.owner = owner
+
+    def code(self) -> grpc.StatusCode:
+        return grpc.StatusCode.UNAVAILABLE
+
+    def trailing_metadata(self) -> tuple[tuple[str, str], ...]:
+        return (("exploration-owner", self.owner),)
+
+
+def test_an_owner_that_is_no_address_is_taken_for_none() -> None:
+    replicas = Replicas(addresses_of("a:1,http://b:2"), None, token_sent=False)
+    assert replicas.current == "http://a:1"
+    # Named holders are followed, even off the list; from there, the list again.
+    assert replicas.follow(_Unavailable("http://c:3"))
+    assert replicas.current == "http://c:3"
+    assert not replicas.follow(_Unavailable("http://c:3")), "the holder named is the one asked"
+    assert replicas.current == "http://a:1"
+    # Whatever the trailer holds that is no address: the next replica, no error.
+    for garbage in ["", "\x00\n", "ftp://x:1", "http://no-port", "x" * 100_000, "http://[::1"]:
+        before = replicas.current
+        assert not replicas.follow(_Unavailable(garbage)), garbage[:20]
+        assert replicas.current != before
+    replicas.close()

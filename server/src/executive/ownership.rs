@@ -125,9 +125,14 @@ impl Executive {
             return Err(Error::NotFound(format!("mission {id} does not exist; ListMissions shows the missions")));
         };
         let ReplicaSettings { claimant, lease, grace } = &ownership.settings;
-        if !ownership.should_claim(id) && !self.held_before(ownership, id).await? {
-            // Over its share: left to a replica under its own.
-            return Err(self.pointer(id).await);
+        if !ownership.should_claim(id) {
+            // Over its share: left to a replica under its own, unless this
+            // replica held it before it restarted (it claims that back at once).
+            let lease = self.store.lease(id).await?;
+            let mine = |l: &Lease| l.owner == claimant.id && l.expires_at > Timestamp::now();
+            if !lease.as_ref().is_some_and(mine) {
+                return Err(Self::pointer_to(id, lease));
+            }
         }
         match self.store.claim(id, claimant, Timestamp::now(), *lease, *grace).await? {
             Some(lease) => self.adopt(ownership, record, lease).await,
@@ -135,17 +140,17 @@ impl Executive {
         }
     }
 
-    /// Whether the lease of `id` names this replica: it held the mission
-    /// before it restarted, and claims it back at once whatever its share.
-    async fn held_before(&self, ownership: &Ownership, id: MissionId) -> Result<bool, Error> {
-        let lease = self.store.lease(id).await?;
-        Ok(lease.is_some_and(|l| l.owner == ownership.settings.claimant.id && l.expires_at > Timestamp::now()))
-    }
-
     /// Where to ask for a mission another replica holds.
     async fn pointer(&self, id: MissionId) -> Error {
-        match self.store.lease(id).await {
-            Ok(Some(lease)) if lease.expires_at > Timestamp::now() => Error::Elsewhere {
+        Self::pointer_to(id, self.store.lease(id).await.ok().flatten())
+    }
+
+    /// Where to ask for mission `id`, whose lease is `lease`: its holder
+    /// while the lease lasts; nobody (ask again, or another replica) once
+    /// it ran out or was released.
+    fn pointer_to(id: MissionId, lease: Option<Lease>) -> Error {
+        match lease {
+            Some(lease) if lease.expires_at > Timestamp::now() => Error::Elsewhere {
                 message: format!("mission {id} is held by the replica {} at {}: ask there", lease.owner, lease.address),
                 owner: Some(lease.address),
             },

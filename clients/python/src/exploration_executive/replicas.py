@@ -117,9 +117,12 @@ class Replicas:
         next address of the list is tried from now on."""
         owner = owner_named_by(error)
         if owner is not None and _url(owner) != self.current:
-            owner = _url(owner)
-            self._check(owner)
-            self.current = owner
+            try:
+                self._check(_url(owner))
+            except ValueError:
+                owner = None  # not an address: the answer names no holder
+        if owner is not None and _url(owner) != self.current:
+            self.current = _url(owner)
             return True
         if error.code() == grpc.StatusCode.UNAVAILABLE:
             self.advance()
