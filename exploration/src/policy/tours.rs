@@ -23,10 +23,6 @@
 //!   (Bautin's Algorithm 2), a cluster no robot is heading to, such as the
 //!   later stops of another robot's tour; when every cluster has a robot, it
 //!   takes MinPos's choice (the least position, then the least cost).
-//!   With `optimal_helpers` set, the helpers are matched to those clusters
-//!   by the Hungarian method on path costs instead (Ko et al. 2003, as
-//!   Burgard et al. 2005 §V describe it; the `hungarian` policy does so for
-//!   the whole team), which led the larger teams in the pilots.
 //! - **Hysteresis** (Simmons et al. 2000 keep a robot's task unless a clearly
 //!   better one appears): the robot's current cluster costs it
 //!   `switch_margin` less, in its ownership, its tour and its helper choice.
@@ -35,7 +31,6 @@
 
 use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_METRES};
 use super::{ClusterCosts, Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
-use crate::assign::assign_with_dummies;
 use crate::cost::{CostCache, CostMap, TraversalKind};
 use crate::frontier::FrontierCluster;
 
@@ -60,52 +55,17 @@ const TOUR_LENGTH: ParamSpec = ParamSpec {
     max: MAX_TOUR as f64,
 };
 
-const OPTIMAL_HELPERS: ParamSpec = ParamSpec {
-    name: "optimal_helpers",
-    description: "1: robots first at no cluster are matched to the clusters nobody is heading to by the Hungarian method; 0: cheapest pair first",
-    default: 0.0,
-    min: 0.0,
-    max: 1.0,
-};
-
-const SEEN_IS_HEADED: ParamSpec = ParamSpec {
-    name: "seen_is_headed",
-    description: "1: a cluster whose representative a robot's sensor would see from its target counts as headed to, so no helper is sent there; 0: only the clusters robots are sent to",
-    default: 0.0,
-    min: 0.0,
-    max: 1.0,
-};
-
-const LEFTOVERS_NEAREST: ParamSpec = ParamSpec {
-    name: "leftovers_nearest",
-    description: "1: helpers left when every cluster is headed to take their nearest cluster; 0: MinPos's choice",
-    default: 0.0,
-    min: 0.0,
-    max: 1.0,
-};
-
 /// The catalogue's entry: name, what it does, parameters with units, and
 /// how it is built from a validated configuration.
 pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
     name: NAME,
     description: "ours: each robot is sent along the shortest tour through the frontiers it is closest to (Bautin et al. 2011, Kulich et al. 2011); robots closest nowhere take the frontiers nobody is heading to",
-    params: &[
-        MIN_FRONTIER_SIZE,
-        SWITCH_METRES,
-        TOUR_LENGTH,
-        POCKET_CELLS,
-        OPTIMAL_HELPERS,
-        SEEN_IS_HEADED,
-        LEFTOVERS_NEAREST,
-    ],
+    params: &[MIN_FRONTIER_SIZE, SWITCH_METRES, TOUR_LENGTH, POCKET_CELLS],
     build: |c| {
         Box::new(Tours {
             switch_margin: c.get("switch_margin"),
             tour_length: c.get("tour_length").round() as usize,
             pocket_cells: c.get("pocket_cells").round() as usize,
-            optimal_helpers: c.get("optimal_helpers") >= 0.5,
-            seen_is_headed: c.get("seen_is_headed") >= 0.5,
-            leftovers_nearest: c.get("leftovers_nearest") >= 0.5,
         })
     },
 };
@@ -122,12 +82,6 @@ pub struct Tours {
     /// Past the nearest, a tour's stops are the owned clusters of at most
     /// this many cells; 0 for any cluster.
     pub pocket_cells: usize,
-    /// Helpers matched by the Hungarian method instead of cheapest pair first.
-    pub optimal_helpers: bool,
-    /// Clusters a target's sensor would see count as headed to.
-    pub seen_is_headed: bool,
-    /// Leftover helpers take their nearest cluster.
-    pub leftovers_nearest: bool,
 }
 
 impl Default for Tours {
@@ -136,9 +90,6 @@ impl Default for Tours {
             switch_margin: SWITCH_METRES.default,
             tour_length: TOUR_LENGTH.default as usize,
             pocket_cells: POCKET_CELLS.default as usize,
-            optimal_helpers: OPTIMAL_HELPERS.default >= 0.5,
-            seen_is_headed: SEEN_IS_HEADED.default >= 0.5,
-            leftovers_nearest: LEFTOVERS_NEAREST.default >= 0.5,
         }
     }
 }
@@ -165,19 +116,7 @@ impl Policy for Tours {
                 }
             })
             .collect();
-        let seen = |i: usize, j: usize, heading: &mut [bool]| {
-            if !self.seen_is_headed {
-                return;
-            }
-            let Some(target) = matrix.cell(i, j) else { return };
-            let range = input.robots[i].capabilities.sensor_range_m;
-            for (k, cluster) in input.clusters.iter().enumerate() {
-                if !heading[k] && super::burgard::covered(input.grid, target, cluster.representative, range) > 0.0 {
-                    heading[k] = true;
-                }
-            }
-        };
-        send_helpers(&matrix, &mut chosen, self.optimal_helpers, &seen, self.leftovers_nearest);
+        send_helpers(&matrix, &mut chosen);
         let targets = chosen
             .iter()
             .enumerate()
@@ -299,30 +238,17 @@ enum Wavefront {
     Compute(std::sync::Arc<crate::cost::TraversalMap>),
 }
 
-/// Robots that own no cluster: onto the clusters no robot is heading to,
-/// cheapest pair first (Bautin et al. 2011, Algorithm 2) or, when
-/// `optimal`, by the Hungarian method; the rest take MinPos's choice, the
-/// least position and then the least score (Algorithm 3).
-fn send_helpers(
-    matrix: &ClusterCosts,
-    chosen: &mut [Option<usize>],
-    optimal: bool,
-    seen: &dyn Fn(usize, usize, &mut [bool]),
-    leftovers_nearest: bool,
-) {
+/// Robots that own no cluster: cheapest pair first onto the clusters no
+/// robot is heading to (Bautin et al. 2011, Algorithm 2); the rest take
+/// MinPos's choice, the least position and then the least score (Algorithm 3).
+fn send_helpers(matrix: &ClusterCosts, chosen: &mut [Option<usize>]) {
     let n = chosen.len();
     let m = matrix.first().map_or(0, Vec::len);
     let mut heading = vec![false; m];
-    for (i, j) in chosen.iter().enumerate() {
-        if let Some(j) = *j {
-            heading[j] = true;
-            seen(i, j, &mut heading);
-        }
+    for j in chosen.iter().flatten() {
+        heading[*j] = true;
     }
     let helpers: Vec<usize> = (0..n).filter(|&i| chosen[i].is_none()).collect();
-    if optimal {
-        match_helpers(matrix, &helpers, &mut heading, chosen);
-    }
     loop {
         let free = &heading;
         let best = helpers
@@ -333,38 +259,16 @@ fn send_helpers(
         let Some((i, j)) = best else { break };
         chosen[i] = Some(j);
         heading[j] = true;
-        seen(i, j, &mut heading);
     }
     for &i in &helpers {
         if chosen[i].is_some() {
             continue;
         }
-        let position = |j: usize| {
-            if leftovers_nearest {
-                return 0;
-            }
-            (0..n).filter(|&k| k != i && matrix[k][j].is_some_and(|o| o.cost < score(matrix, i, j))).count()
-        };
+        let position =
+            |j: usize| (0..n).filter(|&k| k != i && matrix[k][j].is_some_and(|o| o.cost < score(matrix, i, j))).count();
         chosen[i] = (0..m).filter(|&j| matrix[i][j].is_some()).min_by(|&a, &b| {
             position(a).cmp(&position(b)).then(score(matrix, i, a).total_cmp(&score(matrix, i, b))).then(a.cmp(&b))
         });
-    }
-}
-
-/// The `helpers` matched to the clusters nobody is `heading` to, as many as
-/// can be, at the least total score (Kuhn 1955; Ko et al. 2003).
-fn match_helpers(matrix: &ClusterCosts, helpers: &[usize], heading: &mut [bool], chosen: &mut [Option<usize>]) {
-    let free: Vec<usize> = (0..heading.len()).filter(|&j| !heading[j]).collect();
-    if helpers.is_empty() || free.is_empty() {
-        return;
-    }
-    let costs: Vec<f64> = helpers.iter().flat_map(|&i| free.iter().map(move |&j| score(matrix, i, j))).collect();
-    let Ok(matching) = assign_with_dummies(&costs, helpers.len(), free.len()) else { return };
-    for (row, col) in matching.row_to_col.iter().enumerate() {
-        if let Some(&j) = col.and_then(|c| free.get(c)) {
-            chosen[helpers[row]] = Some(j);
-            heading[j] = true;
-        }
     }
 }
 
@@ -500,11 +404,12 @@ mod tests {
         assert_eq!(switched[0].map(|c| c.x), Some(1), "{switched:?}");
     }
 
-    /// Robot i's path cost to cluster j is `cost(i, j)`.
-    fn matrix_of(robots: usize, clusters: usize, cost: impl Fn(usize, usize) -> f64) -> ClusterCosts {
+    /// Robot i is 1 m from clusters 4i..4i+4 and 50 m from the others.
+    fn four_clusters_each(robots: usize) -> ClusterCosts {
+        let cost = |i: usize, j: usize| if j / 4 == i { 1.0 } else { 50.0 };
         let rows = (0..robots)
             .map(|i| {
-                (0..clusters)
+                (0..4 * robots)
                     .map(|j| {
                         Some(super::super::ClusterCost {
                             cell: Cell::new(j as i32, 0),
@@ -517,37 +422,6 @@ mod tests {
             })
             .collect();
         ClusterCosts { rows, descent: None }
-    }
-
-    /// Robot i is 1 m from clusters 4i..4i+4 and 50 m from the others.
-    fn four_clusters_each(robots: usize) -> ClusterCosts {
-        matrix_of(robots, 4 * robots, |i, j| if j / 4 == i { 1.0 } else { 50.0 })
-    }
-
-    /// Two helpers, two clusters nobody is heading to: robot 0 is 1 m from
-    /// cluster 0 and 3 m from cluster 1, robot 1 2 m and 10 m. Cheapest pair
-    /// first gives robot 0 cluster 0 and leaves robot 1 the 10 m (11 m in
-    /// all); the Hungarian method sends them crosswise (5 m).
-    #[test]
-    fn optimal_helpers_are_matched_at_the_least_total_cost() {
-        let costs = [[1.0, 3.0], [2.0, 10.0], [4.0, 4.5]];
-        let two = matrix_of(2, 2, |i, j| costs[i][j]);
-        let mut greedy = vec![None; 2];
-        send_helpers(&two, &mut greedy, false, &|_, _, _| {}, false);
-        assert_eq!(greedy, [Some(0), Some(1)]);
-        let mut optimal = vec![None; 2];
-        send_helpers(&two, &mut optimal, true, &|_, _, _| {}, false);
-        assert_eq!(optimal, [Some(1), Some(0)]);
-        // Three helpers: the pair left out joins a cluster someone already
-        // has; each cluster has a robot either way.
-        let three = matrix_of(3, 2, |i, j| costs[i][j]);
-        let mut greedy = vec![None; 3];
-        send_helpers(&three, &mut greedy, false, &|_, _, _| {}, false);
-        assert_eq!((greedy[0], greedy[2]), (Some(0), Some(1)), "{greedy:?}");
-        let mut optimal = vec![None; 3];
-        send_helpers(&three, &mut optimal, true, &|_, _, _| {}, false);
-        assert_eq!((optimal[0], optimal[1]), (Some(1), Some(0)), "{optimal:?}");
-        assert!(greedy[1].is_some() && optimal[2].is_some(), "{greedy:?} {optimal:?}");
     }
 
     #[test]
