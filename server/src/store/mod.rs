@@ -7,6 +7,8 @@
 //! that fails leaves the store as it was and usable. A store belongs to one
 //! executive at a time ([`lock`]).
 
+use std::sync::Arc;
+
 use async_trait::async_trait;
 
 use crate::domain::{
@@ -255,8 +257,10 @@ pub struct LoggedPatch {
     pub robot_id: RobotId,
     /// The update it came with.
     pub seq: u64,
-    /// The cells.
-    pub patch: Patch,
+    /// The cells, shared: the store writes them while the mission applies
+    /// them, and a copy of a sensor footprint's cells per map update was
+    /// 2 % of the executive's CPU at full map-update load.
+    pub patch: Arc<Patch>,
 }
 
 /// A mission's map as stored: the fused map of the patches folded so far

@@ -209,7 +209,7 @@ async fn a_changeset_round_trips(db: TestDb) {
             robots: vec![robot.clone()],
             new_tasks: vec![task.clone()],
             task_changes: vec![],
-            patches: vec![LoggedPatch { robot_id: robot.id, seq: 5, patch: patch.clone() }],
+            patches: vec![LoggedPatch { robot_id: robot.id, seq: 5, patch: Arc::new(patch.clone()) }],
             policy: Some((mission.id, PolicyConfig::default_for("minpos").unwrap())),
             events: vec![MissionEvent {
                 id: 0,
@@ -463,7 +463,7 @@ async fn a_folded_patch_log_restores_the_same_map(db: TestDb) {
         let values: Vec<f32> = (0..100).map(|_| rng.below(1000) as f32 / 999.0).collect();
         let unknown: Vec<bool> = (0..100).map(|_| rng.below(5) == 0).collect();
         let patch = Patch::from_probabilities(rect, &values, &unknown).unwrap();
-        let logged = LoggedPatch { robot_id: robot, seq, patch };
+        let logged = LoggedPatch { robot_id: robot, seq, patch: Arc::new(patch) };
         sent.push(logged.clone());
         let store = store.clone();
         async move { store.commit(Changeset { patches: vec![logged], ..Changeset::default() }).await.unwrap() }

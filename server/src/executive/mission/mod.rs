@@ -565,7 +565,11 @@ impl Mission {
         Ok(Changeset {
             mission: Some(counters),
             robots: vec![next],
-            patches: update.patches.into_iter().map(|patch| LoggedPatch { robot_id, seq: update.seq, patch }).collect(),
+            patches: update
+                .patches
+                .into_iter()
+                .map(|patch| LoggedPatch { robot_id, seq: update.seq, patch: Arc::new(patch) })
+                .collect(),
             at: Some(now),
             ..Changeset::default()
         })

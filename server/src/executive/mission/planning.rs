@@ -700,7 +700,7 @@ mod tests {
         // Map news alone: the plan still fits (it counts towards the next one).
         let more = Patch::from_probabilities(CellRect::new(20, 0, 2, 20), &[0.1; 40], &[]).unwrap();
         mission.apply(Changeset {
-            patches: vec![LoggedPatch { robot_id: 2, seq: 1, patch: more }],
+            patches: vec![LoggedPatch { robot_id: 2, seq: 1, patch: Arc::new(more) }],
             ..Changeset::default()
         });
         assert!(mission.plan_still_fits(&basis));
@@ -746,7 +746,7 @@ mod tests {
         // that must still trigger the next plan after this one is committed.
         let rest = Patch::from_probabilities(CellRect::new(20, 0, 20, 20), &[0.1; 400], &[]).unwrap();
         mission.apply(Changeset {
-            patches: vec![LoggedPatch { robot_id: 2, seq: 1, patch: rest }],
+            patches: vec![LoggedPatch { robot_id: 2, seq: 1, patch: Arc::new(rest) }],
             ..Changeset::default()
         });
         assert!(mission.plan_still_fits(&basis));

@@ -1,5 +1,7 @@
 //! A small mission the executive's unit tests share.
 
+use std::sync::Arc;
+
 use exploration::fusion::Patch;
 use exploration::grid::{CellRect, GridFrame};
 use exploration::math::Point2;
@@ -25,5 +27,5 @@ pub(crate) fn nearest_spec(name: &str) -> MissionSpec {
 /// The left half of [`nearest_spec`]'s map, free, as robot `robot`'s first update.
 pub(crate) fn left_half_known(robot: RobotId) -> Changeset {
     let known = Patch::from_probabilities(CellRect::new(0, 0, 20, 20), &[0.1; 400], &[]).unwrap();
-    Changeset { patches: vec![LoggedPatch { robot_id: robot, seq: 1, patch: known }], ..Changeset::default() }
+    Changeset { patches: vec![LoggedPatch { robot_id: robot, seq: 1, patch: Arc::new(known) }], ..Changeset::default() }
 }

@@ -6,6 +6,7 @@
 //! the column, so that a bad row stops the start instead.
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use super::statement::{Columns, Value};
 
@@ -311,7 +312,8 @@ pub(super) fn patch_from_row(row: &impl Columns, frame: &GridFrame) -> Result<(u
     let stored: Vec<u8> = at.get(row, "cells")?;
     let format: i64 = at.get(row, "cells_format")?;
     let patch = Patch::from_stored(rect, decode_cells(&at, stored, format, rect.area())?).map_err(|e| at.bad(e))?;
-    let logged = LoggedPatch { robot_id: at.id_column(row, "robot_id")?, seq: at.count(row, "seq")?, patch };
+    let logged =
+        LoggedPatch { robot_id: at.id_column(row, "robot_id")?, seq: at.count(row, "seq")?, patch: Arc::new(patch) };
     Ok((at.id_column(row, "id")?, logged))
 }
 

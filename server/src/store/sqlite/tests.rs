@@ -2,6 +2,8 @@
 //! and what it makes of a file edited by hand. (What every engine does is
 //! in `store::suite`.)
 
+use std::sync::Arc;
+
 use sqlx::Connection;
 
 use super::*;
@@ -29,8 +31,10 @@ async fn stored_mission(dir: &std::path::Path) -> std::path::PathBuf {
         store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(1), None).await.unwrap();
     for seq in 1..=2 {
         let patch = Patch::from_probabilities(CellRect::new(1, 1, 2, 1), &[0.2, 0.9], &[]).unwrap();
-        let changes =
-            Changeset { patches: vec![LoggedPatch { robot_id: robot.id, seq, patch }], ..Changeset::default() };
+        let changes = Changeset {
+            patches: vec![LoggedPatch { robot_id: robot.id, seq, patch: Arc::new(patch) }],
+            ..Changeset::default()
+        };
         store.commit(changes).await.unwrap();
     }
     assert_eq!(compact::fold(&store, &mission, 1).await.unwrap(), 1);
