@@ -118,9 +118,10 @@ struct LoadArgs {
     /// Seconds of the closed-loop capacity phase (0: none).
     #[arg(long, default_value_t = 10.0)]
     capacity: f64,
-    /// Concurrent callers in the capacity phase.
-    #[arg(long, default_value_t = 64)]
-    capacity_callers: usize,
+    /// Concurrent callers in the capacity phase (default: one per robot,
+    /// each sending its next call when the last is answered).
+    #[arg(long)]
+    capacity_callers: Option<usize>,
     /// Write the report as JSON to this file as well.
     #[arg(long)]
     json: Option<PathBuf>,
