@@ -8,7 +8,7 @@
 //! "duplicating existing targets"); unreachable pairs are forbidden.
 
 use super::registry::{MIN_FRONTIER_SIZE, PolicyDescriptor, SWITCH_METRES};
-use super::{ClusterCosts, Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
+use super::{Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
 use crate::assign::assign_with_dummies;
 use crate::cost::CostCache;
 
@@ -38,54 +38,39 @@ impl Policy for Hungarian {
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let matrix = cluster_cost_matrix(input, costs, self.switch_margin);
-        let targets = assign_in_rounds(&matrix)
-            .iter()
-            .enumerate()
-            .map(|(i, j)| {
-                let j = (*j)?;
-                let c = matrix[i][j]?;
-                Some(Target { cell: matrix.cell(i, j)?, utility: -c.cost, path_cost: c.cost, gain_region: None })
-            })
-            .collect();
-        Plan::of(targets)
-    }
-}
-
-/// Each robot's cluster by the Hungarian method on the matrix's scores, in
-/// rounds: each round hands every cluster to at most one of the robots
-/// still without one, so that with more robots than clusters the clusters
-/// are offered again (Wurm et al. 2008's duplicated targets). `None` for a
-/// robot that reaches no cluster (or has no target cell in one).
-pub(super) fn assign_in_rounds(matrix: &ClusterCosts) -> Vec<Option<usize>> {
-    let m = matrix.first().map_or(0, Vec::len);
-    let mut chosen: Vec<Option<usize>> = vec![None; matrix.len()];
-    if m == 0 {
-        return chosen;
-    }
-    loop {
-        let waiting: Vec<usize> =
-            (0..chosen.len()).filter(|&i| chosen[i].is_none() && matrix[i].iter().any(Option::is_some)).collect();
-        if waiting.is_empty() {
-            break;
+        let m = input.clusters.len();
+        let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
+        if m == 0 {
+            return Plan::of(targets);
         }
-        let costs: Vec<f64> =
-            waiting.iter().flat_map(|&i| matrix[i].iter().map(|c| c.map_or(f64::INFINITY, |c| c.score))).collect();
-        let Ok(solution) = assign_with_dummies(&costs, waiting.len(), m) else {
-            break;
-        };
-        let mut progressed = false;
-        for (row, col) in solution.row_to_col.iter().enumerate() {
-            let i = waiting[row];
-            if let Some(j) = col.filter(|&j| matrix.cell(i, j).is_some()) {
-                chosen[i] = Some(j);
-                progressed = true;
+        // Rounds: each hands every frontier to at most one of the robots still waiting.
+        loop {
+            let waiting: Vec<usize> =
+                (0..targets.len()).filter(|&i| targets[i].is_none() && matrix[i].iter().any(Option::is_some)).collect();
+            if waiting.is_empty() {
+                break;
+            }
+            let costs: Vec<f64> =
+                waiting.iter().flat_map(|&i| matrix[i].iter().map(|c| c.map_or(f64::INFINITY, |c| c.score))).collect();
+            let Ok(solution) = assign_with_dummies(&costs, waiting.len(), m) else {
+                break;
+            };
+            let mut progressed = false;
+            for (row, col) in solution.row_to_col.iter().enumerate() {
+                let i = waiting[row];
+                if let Some((j, c)) = col.and_then(|j| matrix[i][j].map(|c| (j, c)))
+                    && let Some(cell) = matrix.cell(i, j)
+                {
+                    targets[i] = Some(Target { cell, utility: -c.cost, path_cost: c.cost, gain_region: None });
+                    progressed = true;
+                }
+            }
+            if !progressed {
+                break;
             }
         }
-        if !progressed {
-            break;
-        }
+        Plan::of(targets)
     }
-    chosen
 }
 
 #[cfg(test)]

@@ -47,14 +47,6 @@ const POCKET_CELLS: ParamSpec = ParamSpec {
     max: 10_000.0,
 };
 
-const CROWDED_OPTIMAL: ParamSpec = ParamSpec {
-    name: "crowded_optimal",
-    description: "1: when robots are at least as many as the frontier clusters, assign them by the Hungarian method in rounds instead of by ownership, tours and helpers; 0: never",
-    default: 0.0,
-    min: 0.0,
-    max: 1.0,
-};
-
 const TOUR_LENGTH: ParamSpec = ParamSpec {
     name: "tour_length",
     description: "how many of its nearest owned frontier clusters a robot's tour visits; 1 is MinPos with helpers",
@@ -68,13 +60,12 @@ const TOUR_LENGTH: ParamSpec = ParamSpec {
 pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
     name: NAME,
     description: "ours: each robot is sent along the shortest tour through the frontiers it is closest to (Bautin et al. 2011, Kulich et al. 2011); robots closest nowhere take the frontiers nobody is heading to",
-    params: &[MIN_FRONTIER_SIZE, SWITCH_METRES, TOUR_LENGTH, POCKET_CELLS, CROWDED_OPTIMAL],
+    params: &[MIN_FRONTIER_SIZE, SWITCH_METRES, TOUR_LENGTH, POCKET_CELLS],
     build: |c| {
         Box::new(Tours {
             switch_margin: c.get("switch_margin"),
             tour_length: c.get("tour_length").round() as usize,
             pocket_cells: c.get("pocket_cells").round() as usize,
-            crowded_optimal: c.get("crowded_optimal") >= 0.5,
         })
     },
 };
@@ -91,10 +82,6 @@ pub struct Tours {
     /// Past the nearest, a tour's stops are the owned clusters of at most
     /// this many cells; 0 for any cluster.
     pub pocket_cells: usize,
-    /// With at least as many robots as clusters, the Hungarian method in
-    /// rounds instead (every robot owns one cluster at most then, so no
-    /// tour has a second stop).
-    pub crowded_optimal: bool,
 }
 
 impl Default for Tours {
@@ -103,7 +90,6 @@ impl Default for Tours {
             switch_margin: SWITCH_METRES.default,
             tour_length: TOUR_LENGTH.default as usize,
             pocket_cells: POCKET_CELLS.default as usize,
-            crowded_optimal: CROWDED_OPTIMAL.default >= 0.5,
         }
     }
 }
@@ -115,9 +101,6 @@ impl Policy for Tours {
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let matrix = cluster_cost_matrix(input, costs, self.switch_margin);
-        if self.crowded_optimal && input.robots.len() >= input.clusters.len() {
-            return targets_of(&matrix, &super::hungarian::assign_in_rounds(&matrix));
-        }
         let tours = self.tours(&matrix, input.clusters);
         let legs = legs_between_stops(input, costs, &matrix, &tours);
         let mut chosen: Vec<Option<usize>> = tours
@@ -134,22 +117,17 @@ impl Policy for Tours {
             })
             .collect();
         send_helpers(&matrix, &mut chosen);
-        targets_of(&matrix, &chosen)
+        let targets = chosen
+            .iter()
+            .enumerate()
+            .map(|(i, j)| {
+                let j = (*j)?;
+                let c = matrix[i][j]?;
+                Some(Target { cell: matrix.cell(i, j)?, utility: -c.score, path_cost: c.cost, gain_region: None })
+            })
+            .collect();
+        Plan::of(targets)
     }
-}
-
-/// The plan that sends each robot to its chosen cluster's cell nearest to it.
-fn targets_of(matrix: &ClusterCosts, chosen: &[Option<usize>]) -> Plan {
-    let targets = chosen
-        .iter()
-        .enumerate()
-        .map(|(i, j)| {
-            let j = (*j)?;
-            let c = matrix[i][j]?;
-            Some(Target { cell: matrix.cell(i, j)?, utility: -c.score, path_cost: c.cost, gain_region: None })
-        })
-        .collect();
-    Plan::of(targets)
 }
 
 impl Tours {
@@ -329,37 +307,8 @@ mod tests {
     use super::*;
     use crate::grid::Cell;
     use crate::grid::testing::grid_from_picture;
-    use crate::policy::testing::{cheapest_pair_trap, plan_targets, plan_with_defaults, robot, with_input};
+    use crate::policy::testing::{plan_targets, plan_with_defaults, robot, with_input};
     use crate::policy::{CurrentTask, MinPos, Nearest};
-
-    /// Two robots, two frontier clusters (`cheapest_pair_trap`): robot 0 is
-    /// first at both, so by ownership it takes the left end (the start of
-    /// its tour) and robot 1, a helper, the far right: 13.4 in all. As many
-    /// robots as clusters, `crowded_optimal` assigns by the Hungarian
-    /// method instead: the least total, 11.4, swaps them.
-    #[test]
-    fn a_crowded_team_is_assigned_by_the_least_total_cost() {
-        let (grid, robots, left, right) = cheapest_pair_trap();
-        let (left, right) = (Some(left), Some(right));
-        assert_eq!(plan_targets(&Tours::default(), &grid, &robots), vec![left, right]);
-        let crowded = Tours { crowded_optimal: true, ..Tours::default() };
-        assert_eq!(plan_targets(&crowded, &grid, &robots), vec![right, left]);
-        assert_eq!(plan_with_defaults("hungarian", &grid, &robots), vec![right, left]);
-    }
-
-    /// With fewer robots than clusters the switch changes nothing: one
-    /// robot still takes its tour's first stop, the pocket behind it.
-    #[test]
-    fn crowded_optimal_leaves_a_lone_robot_to_its_tour() {
-        let grid = grid_from_picture(&[
-            "##################?######################", //
-            "?.......................................?", //
-            "#########################################", //
-        ]);
-        let robots = [robot(0, Cell::new(10, 1), 1.0)];
-        let crowded = Tours { crowded_optimal: true, ..Tours::default() };
-        assert_eq!(plan_targets(&crowded, &grid, &robots)[0].map(|c| c.x), Some(1));
-    }
 
     /// A corridor open at both ends, with a side opening up from it at x =
     /// 18. The robot at x = 10 is 8 from the side opening, 10 from the left
