@@ -63,10 +63,21 @@ async fn a_fleet_explores_through_tls_with_the_real_binaries() {
 }
 
 async fn list(url: &str, tls: Option<&ClientTls>) -> Result<usize, String> {
-    let channel = endpoint(url, tls).map_err(|e| e.to_string())?.connect().await.map_err(|e| format!("{e:?}"))?;
+    // A deadline, so that a connection neither answered nor closed fails
+    // with its step named instead of hanging the test run (it did once, in
+    // about a dozen CI runs).
+    let deadline = Duration::from_secs(20);
+    let endpoint = endpoint(url, tls).map_err(|e| e.to_string())?.timeout(deadline);
+    let channel = tokio::time::timeout(deadline, endpoint.connect())
+        .await
+        .map_err(|_| format!("connecting to {url}: no answer in {deadline:?}"))?
+        .map_err(|e| format!("{e:?}"))?;
     let bearer = exploration_proto::Bearer::new(Some(TOKEN)).unwrap();
     let mut missions = MissionsClient::with_interceptor(channel, bearer);
-    let listed = missions.list_missions(pb::ListMissionsRequest {}).await.map_err(|s| s.to_string())?;
+    let listed = tokio::time::timeout(deadline, missions.list_missions(pb::ListMissionsRequest {}))
+        .await
+        .map_err(|_| format!("ListMissions on {url}: no answer in {deadline:?}"))?
+        .map_err(|s| s.to_string())?;
     Ok(listed.into_inner().missions.len())
 }
 
@@ -85,12 +96,16 @@ async fn mutual_tls_admits_only_certified_clients_and_clients_check_the_server()
     let certified = ClientTls::from_files(Some(&pki.ca), Some(&pki.client_cert), Some(&pki.client_key)).unwrap();
     assert_eq!(list(&url, Some(&certified)).await, Ok(0));
     let anonymous = ClientTls::from_files(Some(&pki.ca), None, None).unwrap();
-    assert!(list(&url, Some(&anonymous)).await.is_err(), "no client certificate, no entry");
+    let refused = list(&url, Some(&anonymous)).await;
+    eprintln!("without a client certificate: {refused:?}");
+    assert!(refused.is_err(), "no client certificate, no entry");
     let wrong_trust =
         ClientTls::from_files(Some(&pki.other_ca), Some(&pki.client_cert), Some(&pki.client_key)).unwrap();
     assert!(list(&url, Some(&wrong_trust)).await.is_err(), "the client refuses a server its CA did not sign");
     let plaintext = format!("http://{}", exec.address);
-    assert!(list(&plaintext, None).await.is_err(), "no plaintext on a TLS port");
+    let refused = list(&plaintext, None).await;
+    eprintln!("plaintext on the TLS port: {refused:?}");
+    assert!(refused.is_err(), "no plaintext on a TLS port");
     exec.stop().await;
 }
 
