@@ -224,6 +224,9 @@ pub struct LoadReport {
     /// Triggers reported earlier and never answered: the executive missed
     /// them.
     pub triggers_unanswered: u64,
+    /// The slowest answered triggers, slowest first: when each came tells a
+    /// start-up burst from a stall later in the run.
+    pub slowest_triggers: Vec<SlowTrigger>,
     /// Per mission that completed (its frontier explored) during the phase:
     /// when, seconds from the start. Once a mission completes its robots
     /// get no more exploration targets, so later figures measure a fleet
@@ -282,6 +285,14 @@ impl LoadReport {
             self.triggers_unanswered,
             self.triggers_pending_at_end
         );
+        if !self.slowest_triggers.is_empty() {
+            let slowest: Vec<String> = self
+                .slowest_triggers
+                .iter()
+                .map(|t| format!("{:.0} ms at {:.1} s (mission {})", t.delay_ms, t.reported_s, t.mission))
+                .collect();
+            out += &format!("slowest triggers: {}\n", slowest.join(", "));
+        }
         if !self.missions_completed_s.is_empty() {
             let mut at: Vec<f64> = self.missions_completed_s.values().copied().collect();
             at.sort_by(f64::total_cmp);
@@ -324,6 +335,22 @@ impl LoadReport {
     }
 }
 
+/// One answered trigger, for the list of the slowest.
+#[derive(Debug, Clone, Serialize)]
+pub struct SlowTrigger {
+    /// When the robot reported its arrival, seconds from the start.
+    pub reported_s: f64,
+    /// Its mission.
+    pub mission: u64,
+    /// The robot.
+    pub robot: u64,
+    /// From the report to the next task, milliseconds.
+    pub delay_ms: f64,
+}
+
+/// How many of the slowest triggers the report lists.
+const SLOWEST_TRIGGERS: usize = 5;
+
 /// How long before the end of the phase an unanswered trigger counts as
 /// pending rather than missed: a few replanning intervals.
 pub const TRIGGER_GRACE: Duration = Duration::from_secs(5);
@@ -338,6 +365,8 @@ struct Triggers {
     unanswered: u64,
     /// Mission → when it was first seen completed.
     completed: BTreeMap<u64, Instant>,
+    /// The slowest answered: delay, when reported, mission, robot.
+    slowest: Vec<(Duration, Instant, u64, u64)>,
 }
 
 impl Triggers {
@@ -348,7 +377,15 @@ impl Triggers {
             pending: 0,
             unanswered: 0,
             completed: BTreeMap::new(),
+            slowest: Vec::new(),
         }
+    }
+
+    fn answer(&mut self, delay: Duration, reported: Instant, mission: u64, robot: u64) {
+        self.answered.saturating_record(delay.as_micros() as u64);
+        self.slowest.push((delay, reported, mission, robot));
+        self.slowest.sort_by(|a, b| b.0.cmp(&a.0));
+        self.slowest.truncate(SLOWEST_TRIGGERS);
     }
 }
 
@@ -638,6 +675,16 @@ async fn run_against(
         triggers_ended_by_completion: triggers.ended_by_completion,
         triggers_pending_at_end: triggers.pending,
         triggers_unanswered: triggers.unanswered,
+        slowest_triggers: triggers
+            .slowest
+            .iter()
+            .map(|&(delay, reported, mission, robot)| SlowTrigger {
+                reported_s: reported.saturating_duration_since(started).as_secs_f64(),
+                mission,
+                robot,
+                delay_ms: delay.as_secs_f64() * 1e3,
+            })
+            .collect(),
         missions_completed_s: triggers
             .completed
             .iter()
@@ -737,7 +784,7 @@ async fn drive(
                 if explores && a.task_id != task {
                     let delay = arrived.saturating_duration_since(reported).max(Duration::from_micros(1));
                     let mut triggers = triggers.lock().unwrap_or_else(|e| e.into_inner());
-                    triggers.answered.saturating_record(delay.as_micros() as u64);
+                    triggers.answer(delay, reported, robot.mission, robot.id);
                     waiting = None;
                 } else if a.mission_state == pb::MissionState::Completed as i32 {
                     triggers.lock().unwrap_or_else(|e| e.into_inner()).ended_by_completion += 1;

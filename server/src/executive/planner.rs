@@ -267,6 +267,7 @@ impl Planner {
         let demands = mission.demands();
         mission.apply(changes);
         mission.mark_replanned(now, basis, demands);
+        mission.demand_for_robots_left_idle(outcome);
         tracing::debug!(mission = mission.record().id, %reason, reassigned, replans = mission.record().replans, "replanned");
         Ok(())
     }

@@ -573,6 +573,25 @@ impl Mission {
         }
     }
 
+    /// After a committed plan: a robot of the pool the plan had a target
+    /// for, still without a task (its target was explored while the plan
+    /// was made, see [`Mission::prepare_plan`]), is owed a plan at once, as
+    /// a demand. Left to the map news alone it would stand idle until the
+    /// planner's least gap between plans had passed.
+    pub(crate) fn demand_for_robots_left_idle(&mut self, outcome: &JobOutcome) {
+        if outcome.complete {
+            return;
+        }
+        let idle = outcome.order.iter().zip(&outcome.plan.targets).find_map(|(id, target)| {
+            let slot = self.robots.get(id)?;
+            let left = target.is_some() && slot.record.current_task.is_none() && self.in_pool(&slot.record);
+            left.then_some(*id)
+        });
+        if let Some(robot) = idle {
+            self.demand_replan(format!("robot {robot}'s target was explored while it was planned"));
+        }
+    }
+
     /// What a plan is made on, to tell at commit whether it still fits.
     pub(crate) fn plan_basis(&self) -> PlanBasis {
         PlanBasis {
@@ -732,6 +751,44 @@ mod tests {
         assert!(
             mission.replan_reason(Instant::now()).is_some_and(|r| r.contains("robot arrived")),
             "it is planned next"
+        );
+    }
+
+    #[test]
+    fn a_robot_whose_target_was_explored_while_it_was_planned_is_planned_again_at_once() {
+        let mut mission = mission();
+        let ids = AtomicU64::new(0);
+        plan(&mut mission, &ids);
+        // Robot 1 arrives; the plan that answers it is made on a snapshot.
+        let task = mission.open_tasks.values().find(|t| t.robot_id == 1).unwrap().clone();
+        let mut arrived = mission.robots[&1].record.clone();
+        arrived.current_task = None;
+        mission.apply(Changeset {
+            task_changes: vec![transition(&task, TaskState::Reached, "robot arrived", Actor::Robot, Timestamp(2))],
+            robots: vec![arrived],
+            ..Changeset::default()
+        });
+        let basis = mission.plan_basis();
+        let outcome = mission.planning_job(1).run();
+        let order = outcome.order.iter().position(|&id| id == 1).unwrap();
+        let target = outcome.plan.targets[order].as_ref().expect("robot 1 is given a target").cell;
+        // Meanwhile the rest of the map becomes known, that target with it.
+        let rest = Patch::from_probabilities(CellRect::new(20, 0, 20, 20), &[0.1; 400], &[]).unwrap();
+        mission.apply(Changeset {
+            patches: vec![LoggedPatch { robot_id: 2, seq: 1, patch: Arc::new(rest) }],
+            ..Changeset::default()
+        });
+        assert!(!mission.frontier().contains(target), "the target was explored");
+        let changes = mission.prepare_plan(&outcome, "test", Timestamp(3), &ids);
+        let demands = mission.demands();
+        mission.apply(changes);
+        mission.mark_replanned(Instant::now(), &basis, demands);
+        mission.demand_for_robots_left_idle(&outcome);
+        assert_eq!(mission.robots[&1].record.current_task, None, "robot 1 was left without a task");
+        let hour = std::time::Duration::from_secs(3600);
+        assert!(
+            mission.replan_reason_off_path(Instant::now(), hour).is_some_and(|r| r.contains("robot 1")),
+            "robot 1 does not wait for the least gap between plans"
         );
     }
 
