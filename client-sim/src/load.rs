@@ -384,7 +384,7 @@ impl Triggers {
     fn answer(&mut self, delay: Duration, reported: Instant, mission: u64, robot: u64) {
         self.answered.saturating_record(delay.as_micros() as u64);
         self.slowest.push((delay, reported, mission, robot));
-        self.slowest.sort_by(|a, b| b.0.cmp(&a.0));
+        self.slowest.sort_by_key(|s| std::cmp::Reverse(s.0));
         self.slowest.truncate(SLOWEST_TRIGGERS);
     }
 }

@@ -658,3 +658,62 @@ async fn connections_beyond_the_limit_are_refused_until_one_closes() {
     stop.cancel();
     served.await.unwrap().unwrap();
 }
+
+/// Another program on the same database file (an operator's `sqlite3`
+/// shell inside `BEGIN IMMEDIATE`, say) holds SQLite's write lock while the
+/// robots of ten missions send map updates. Each call is answered
+/// UNAVAILABLE once SQLite's busy timeout (5 s) has passed for the groups it
+/// waited behind (about 20 s at most here: a mission's own plan may be
+/// queued first), and none of them is written; when the lock is released,
+/// updates go through again and every acknowledged one is in the store. (A
+/// group that failed that way was written again changeset by changeset,
+/// each waiting out the busy timeout anew: nine missions' updates grouped
+/// together took 45 s and more.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_program_holding_the_write_lock_gets_every_call_answered_in_time() {
+    use sqlx::Connection;
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("held.db");
+    let exec = TestExecutive::start(&db).await;
+    let mut missions = exec.missions();
+    let mut fleet = exec.fleet();
+    let send = |robot: u64, seq: u64| update(robot, seq, 0.5, 0.5, vec![patch(seq as u32, 0, 5, 5, 0.1)]);
+    let mut robots = Vec::new();
+    for _ in 0..10 {
+        let mission = create_mission(&mut missions, 60, 30, "nearest").await;
+        let robot = register(&mut fleet, mission.id, "r", 0.5, 0.5).await;
+        fleet.update_map(send(robot.id, 1)).await.unwrap();
+        robots.push((mission.id, robot.id));
+    }
+
+    let mut other = sqlx::SqliteConnection::connect(&format!("sqlite://{}", db.display())).await.unwrap();
+    sqlx::query("BEGIN IMMEDIATE").execute(&mut other).await.unwrap();
+    let deadline = Duration::from_secs(45);
+    let mut calls = tokio::task::JoinSet::new();
+    for &(_, robot) in &robots {
+        let mut client = exec.fleet();
+        let mut request = tonic::Request::new(send(robot, 2));
+        request.set_timeout(deadline);
+        calls.spawn(async move { client.update_map(request).await });
+    }
+    for outcome in calls.join_all().await {
+        let status = outcome.expect_err("nothing is written while the lock is held");
+        assert_eq!(status.code(), Code::Unavailable, "answered before the deadline of {deadline:?}: {status:?}");
+        assert!(status.message().contains("nothing of this request was written"), "{}", status.message());
+    }
+    sqlx::query("ROLLBACK").execute(&mut other).await.unwrap();
+    drop(other);
+
+    // Released: the same updates go through, and only they are stored.
+    for &(_, robot) in &robots {
+        fleet.update_map(send(robot, 2)).await.expect("writes work again once the lock is released");
+    }
+    exec.stop().await;
+    let exec = TestExecutive::start(&db).await;
+    let mut missions = exec.missions();
+    for &(mission_id, _) in &robots {
+        let stored = missions.get_mission(pb::GetMissionRequest { mission_id }).await.unwrap().into_inner();
+        assert_eq!(stored.map_updates, 2, "mission {mission_id}: the two acknowledged updates, no other");
+    }
+    exec.stop().await;
+}

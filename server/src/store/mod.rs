@@ -154,6 +154,16 @@ pub enum StoreError {
         /// The mission.
         mission_id: MissionId,
     },
+    /// Not written: the transaction it was grouped in failed as a whole
+    /// (the database busy past its timeout, an I/O error), and retrying it
+    /// alone at once would meet the same.
+    #[error("not written: {cause}")]
+    Unwritten {
+        /// What the failure means for the caller.
+        kind: FailureKind,
+        /// The failure of the transaction.
+        cause: String,
+    },
     /// Not written because a changeset it follows was not (see [`Store::submit`]).
     #[error("not written: a changeset it follows failed ({cause})")]
     Abandoned {
@@ -183,7 +193,7 @@ pub enum FailureKind {
 impl StoreError {
     /// What this failure means for the caller.
     pub fn kind(&self) -> FailureKind {
-        if let Self::Abandoned { kind, .. } = self {
+        if let Self::Abandoned { kind, .. } | Self::Unwritten { kind, .. } = self {
             return *kind;
         }
         if let Self::Fenced { .. } = self {

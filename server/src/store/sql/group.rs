@@ -70,15 +70,28 @@ async fn run<B: Backend>(backend: Arc<B>, mut queue: mpsc::Receiver<Pending>, me
                     let _ = pending.reply.send(Ok(pending.changes));
                 }
             }
+            // The transaction could not even begin (the database busy past
+            // its timeout, unreachable): no changeset is the cause, and
+            // written again one by one each would wait for it anew.
+            Err(GroupFailure::Begin(e)) => {
+                for pending in group {
+                    let Some(pending) = broken.unless_abandoned(pending) else { continue };
+                    let error = StoreError::Unwritten { kind: e.kind(), cause: e.to_string() };
+                    broken.failed(pending.id, &error);
+                    let _ = pending.reply.send(Err(error));
+                }
+            }
             // Written again one by one: only the changesets that fail alone
             // fail, and those that follow them.
-            Err(e) => {
+            Err(GroupFailure::Write(e)) => {
                 let mut first_error = Some(e);
                 for pending in group {
                     let Some(pending) = broken.unless_abandoned(pending) else { continue };
                     let outcome = match first_error.take().filter(|_| size == 1) {
                         Some(e) => Err(e),
-                        None => write_group(&*backend, std::slice::from_ref(&pending.changes)).await,
+                        None => write_group(&*backend, std::slice::from_ref(&pending.changes))
+                            .await
+                            .map_err(GroupFailure::into_error),
                     };
                     match outcome {
                         Ok(()) => {
@@ -122,10 +135,27 @@ impl Broken {
     }
 }
 
+/// Why a group was not written.
+#[derive(Debug)]
+enum GroupFailure {
+    /// The transaction did not begin: nothing of the group was tried.
+    Begin(StoreError),
+    /// Writing or committing failed: a changeset may be the cause.
+    Write(StoreError),
+}
+
+impl GroupFailure {
+    fn into_error(self) -> StoreError {
+        match self {
+            Self::Begin(e) | Self::Write(e) => e,
+        }
+    }
+}
+
 /// Writes `changesets` in one transaction; on a failure, none of them
 /// (see [`Transaction`]).
-async fn write_group(backend: &impl Backend, changesets: &[Changeset]) -> Result<(), StoreError> {
-    let mut tx = backend.begin_write().await?;
-    write::group(&mut tx, changesets).await?;
-    tx.commit().await
+async fn write_group(backend: &impl Backend, changesets: &[Changeset]) -> Result<(), GroupFailure> {
+    let mut tx = backend.begin_write().await.map_err(GroupFailure::Begin)?;
+    write::group(&mut tx, changesets).await.map_err(GroupFailure::Write)?;
+    tx.commit().await.map_err(GroupFailure::Write)
 }
