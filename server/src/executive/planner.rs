@@ -9,7 +9,10 @@
 //! background budget: one core fewer than all by default, so that requests
 //! keep a core while every mission plans), and commits it only while it
 //! still fits the mission: if something that demands a new plan happened meanwhile (a task
-//! ended, a robot joined or left, the policy changed), it plans again.
+//! ended, a robot joined or left, the policy changed), it plans again. A
+//! plan is committed as a map update is: queued and applied under the
+//! lock, which is released while the disk works; the robots are told their
+//! new tasks once it is durable.
 //!
 //! A mission in lockstep (simulations) is planned inside the request that
 //! made the plan due, under the mission's lock, so that the same requests in
@@ -22,8 +25,8 @@ use tokio::sync::{Mutex, MutexGuard, Notify, Semaphore};
 use tokio::task::JoinSet;
 use tokio_util::sync::CancellationToken;
 
-use super::mission::Mission;
-use super::writer::Writer;
+use super::mission::{JobOutcome, Mission, PlanBasis};
+use super::writer::{Queued, Writer};
 use crate::clock::Clock;
 use crate::domain::Timestamp;
 use crate::error::Error;
@@ -253,23 +256,58 @@ impl Planner {
         self.commit_plan(mission, &outcome, &reason, now, &basis).await
     }
 
+    /// Commits a plan under the mission's lock: written, then applied.
     async fn commit_plan(
         &self,
         mission: &mut Mission,
-        outcome: &super::mission::JobOutcome,
+        outcome: &JobOutcome,
         reason: &str,
         now: tokio::time::Instant,
-        basis: &super::mission::PlanBasis,
+        basis: &PlanBasis,
     ) -> Result<(), Error> {
         let changes = mission.prepare_plan(outcome, reason, Timestamp::now(), &self.task_ids);
         let changes = self.writer.write(mission, changes).await?;
         let reassigned = changes.new_tasks.len();
         let demands = mission.demands();
         mission.apply(changes);
-        mission.mark_replanned(now, basis, demands);
+        Self::mark_committed(mission, outcome, reason, now, basis, demands, reassigned);
+        Ok(())
+    }
+
+    /// Queues a plan and applies it at once, as a map update is (see
+    /// `writer`): the mission is released while the disk works, and the
+    /// robots are told their new tasks once the plan is durable
+    /// ([`Writer::durable`]). Written under the lock, a plan held every
+    /// request of its mission behind the disk: in a stall of the disk, fifty
+    /// robots' calls filled the mission's queue and were shed.
+    async fn queue_plan(
+        &self,
+        mission: &mut Mission,
+        outcome: &JobOutcome,
+        reason: &str,
+        now: tokio::time::Instant,
+        basis: &PlanBasis,
+    ) -> Result<Queued, Error> {
+        let changes = mission.prepare_plan(outcome, reason, Timestamp::now(), &self.task_ids);
+        let reassigned = changes.new_tasks.len();
+        let demands = mission.demands();
+        let queued = self.writer.queue_and_apply(mission, changes).await?;
+        Self::mark_committed(mission, outcome, reason, now, basis, demands, reassigned);
+        Ok(queued)
+    }
+
+    fn mark_committed(
+        mission: &mut Mission,
+        outcome: &JobOutcome,
+        reason: &str,
+        now: tokio::time::Instant,
+        basis: &PlanBasis,
+        demands_before: u64,
+        reassigned: usize,
+    ) {
+        mission.mark_replanned(now, basis, demands_before);
         mission.demand_for_robots_left_idle(outcome);
         tracing::debug!(mission = mission.record().id, %reason, reassigned, replans = mission.record().replans, "replanned");
-        Ok(())
     }
 
     /// Plans a mission off the request path (see the module).
@@ -301,18 +339,29 @@ impl Planner {
                     return;
                 }
             };
-            let mut mission = cell.lock().await;
-            if !mission.plan_still_fits(&basis) {
-                self.metrics.stale_plans.inc();
-                continue;
-            }
-            if let Err(e) = self.commit_plan(&mut mission, &outcome, &reason, now, &basis).await {
-                tracing::error!(mission = mission.record().id, error = %e, "replanning failed; it stays due");
-                mission.note_replan_failed();
+            let queued = {
+                let mut mission = cell.lock().await;
+                if !mission.plan_still_fits(&basis) {
+                    self.metrics.stale_plans.inc();
+                    continue;
+                }
+                match self.queue_plan(&mut mission, &outcome, &reason, now, &basis).await {
+                    Ok(queued) => queued,
+                    Err(e) => {
+                        tracing::error!(mission = mission.record().id, error = %e, "replanning failed; it stays due");
+                        mission.note_replan_failed();
+                        return;
+                    }
+                }
+            };
+            // Not durable: the mission was reloaded from the store (which
+            // leaves a replanning due) and the robots were told nothing.
+            if let Err(e) = self.writer.durable(queued, cell).await {
+                tracing::error!(error = %e, "a replanning could not be written; the mission was reloaded");
                 return;
             }
             // Demands that arrived meanwhile are served by the next round.
-            if mission.replan_reason_off_path(self.clock.now(), self.min_gap).is_none() {
+            if cell.lock().await.replan_reason_off_path(self.clock.now(), self.min_gap).is_none() {
                 return;
             }
         }
@@ -393,6 +442,65 @@ mod tests {
             assert!(mission.robot(robot.id).unwrap().current_task.is_some(), "{} has a task", robot.name);
         }
         drop(mission);
+        planner.shutdown().await;
+    }
+
+    /// While a plan waits for the disk (here another connection holds
+    /// SQLite's write lock), its mission is free for requests and already
+    /// holds the plan, but no robot is told a new task until the plan is
+    /// durable. Written under the lock, the plan kept the mission held
+    /// until the disk answered (this test then never sees the plan).
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_plan_waiting_for_the_disk_leaves_its_mission_free_and_tells_nobody() {
+        use sqlx::Connection;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.db");
+        let store = SqliteStore::open(&path, crate::Durability::Full).await.unwrap();
+        let record = store.create_mission(&nearest_spec("held"), Timestamp(1)).await.unwrap();
+        let capabilities =
+            Capabilities { sensor_range_m: 1.0, field_of_view_rad: 6.0, speed_mps: 0.5, footprint_radius_m: 0.0 };
+        let pose = Pose { position: Point2::new(0.5, 0.5), heading: 0.0 };
+        let spec = RobotSpec { name: "a".into(), capabilities, pose };
+        let robot = store.create_robot(record.id, &spec, &|_| "0".repeat(64), Timestamp(1), None).await.unwrap();
+        let now = tokio::time::Instant::now();
+        let mut mission = Mission::new(record, now);
+        mission.insert_robot(robot.clone(), now);
+        mission.apply(left_half_known(robot.id));
+
+        let store: Arc<dyn Store> = Arc::new(store);
+        let metrics = Arc::new(Metrics::new());
+        let writer = Writer::new(store, Clock::default(), Arc::clone(&metrics));
+        let ids = Arc::new(AtomicU64::new(0));
+        let planner = Planner::new(writer, Clock::default(), 1, 1, ids, metrics, Default::default());
+        let cell = Arc::new(MissionCell::new(mission));
+        let mut other = sqlx::SqliteConnection::connect(&format!("sqlite://{}", path.display())).await.unwrap();
+        sqlx::query("BEGIN IMMEDIATE").execute(&mut other).await.unwrap();
+        planner.start(Arc::clone(&cell));
+        cell.wake.notify_one();
+        // A guard, not a measurement: the disk stays held until the plan is seen.
+        let seen = tokio::time::timeout(std::time::Duration::from_secs(30), async {
+            loop {
+                let mission = cell.lock().await;
+                if mission.record().replans == 1 {
+                    let planned = mission.robot(robot.id).unwrap().current_task;
+                    assert!(planned.is_some(), "the mission holds the plan");
+                    assert!(mission.assignment_told(robot.id).unwrap().task.is_none(), "nobody is told it yet");
+                    return;
+                }
+                drop(mission);
+                tokio::task::yield_now().await;
+            }
+        });
+        seen.await.expect("the plan is applied while the disk is held");
+        sqlx::query("ROLLBACK").execute(&mut other).await.unwrap();
+        loop {
+            let mission = cell.lock().await;
+            if mission.assignment_told(robot.id).unwrap().task.is_some() {
+                break;
+            }
+            drop(mission);
+            tokio::task::yield_now().await;
+        }
         planner.shutdown().await;
     }
 

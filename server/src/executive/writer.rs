@@ -10,10 +10,11 @@
 //! answered only once the write is durable (Redis does the same with
 //! `appendfsync always`): nothing is acknowledged before it is durable, and
 //! the next request of the mission is prepared while the disk works.
-//! Heartbeats that change a task's state are written the same way (each new
-//! target sets off several), and the assignments such a write moves reach
-//! the robots only once it is durable (`Mission::apply_queued`). Other
-//! writes keep the simpler order (write, then apply) under the lock.
+//! Heartbeats that change a task's state and plans made off the request
+//! path are written the same way (each new target sets off several
+//! transitions), and the assignments such a write moves reach the robots
+//! only once it is durable (`Mission::apply_queued`). Other writes keep the
+//! simpler order (write, then apply) under the lock.
 //!
 //! Every changeset of a mission follows the one before it ([`Store::submit`]),
 //! so one prepared on a state that held an update the disk then refused is
