@@ -253,24 +253,17 @@ impl Planner {
         let started = std::time::Instant::now();
         let outcome = self.threads_pool.run(move || job.run()).await?;
         self.metrics.observe_plan(mission.record().spec.policy.name(), started.elapsed());
-        self.commit_plan(mission, &outcome, &reason, now, &basis).await
+        self.commit_plan(mission, &MadePlan { outcome: &outcome, reason: &reason, now, basis: &basis }).await
     }
 
     /// Commits a plan under the mission's lock: written, then applied.
-    async fn commit_plan(
-        &self,
-        mission: &mut Mission,
-        outcome: &JobOutcome,
-        reason: &str,
-        now: tokio::time::Instant,
-        basis: &PlanBasis,
-    ) -> Result<(), Error> {
-        let changes = mission.prepare_plan(outcome, reason, Timestamp::now(), &self.task_ids);
+    async fn commit_plan(&self, mission: &mut Mission, plan: &MadePlan<'_>) -> Result<(), Error> {
+        let changes = mission.prepare_plan(plan.outcome, plan.reason, Timestamp::now(), &self.task_ids);
         let changes = self.writer.write(mission, changes).await?;
         let reassigned = changes.new_tasks.len();
         let demands = mission.demands();
         mission.apply(changes);
-        Self::mark_committed(mission, outcome, reason, now, basis, demands, reassigned);
+        plan.mark_committed(mission, demands, reassigned);
         Ok(())
     }
 
@@ -280,34 +273,13 @@ impl Planner {
     /// ([`Writer::durable`]). Written under the lock, a plan held every
     /// request of its mission behind the disk: in a stall of the disk, fifty
     /// robots' calls filled the mission's queue and were shed.
-    async fn queue_plan(
-        &self,
-        mission: &mut Mission,
-        outcome: &JobOutcome,
-        reason: &str,
-        now: tokio::time::Instant,
-        basis: &PlanBasis,
-    ) -> Result<Queued, Error> {
-        let changes = mission.prepare_plan(outcome, reason, Timestamp::now(), &self.task_ids);
+    async fn queue_plan(&self, mission: &mut Mission, plan: &MadePlan<'_>) -> Result<Queued, Error> {
+        let changes = mission.prepare_plan(plan.outcome, plan.reason, Timestamp::now(), &self.task_ids);
         let reassigned = changes.new_tasks.len();
         let demands = mission.demands();
         let queued = self.writer.queue_and_apply(mission, changes).await?;
-        Self::mark_committed(mission, outcome, reason, now, basis, demands, reassigned);
+        plan.mark_committed(mission, demands, reassigned);
         Ok(queued)
-    }
-
-    fn mark_committed(
-        mission: &mut Mission,
-        outcome: &JobOutcome,
-        reason: &str,
-        now: tokio::time::Instant,
-        basis: &PlanBasis,
-        demands_before: u64,
-        reassigned: usize,
-    ) {
-        mission.mark_replanned(now, basis, demands_before);
-        mission.demand_for_robots_left_idle(outcome);
-        tracing::debug!(mission = mission.record().id, %reason, reassigned, replans = mission.record().replans, "replanned");
     }
 
     /// Plans a mission off the request path (see the module).
@@ -345,7 +317,8 @@ impl Planner {
                     self.metrics.stale_plans.inc();
                     continue;
                 }
-                match self.queue_plan(&mut mission, &outcome, &reason, now, &basis).await {
+                let plan = MadePlan { outcome: &outcome, reason: &reason, now, basis: &basis };
+                match self.queue_plan(&mut mission, &plan).await {
                     Ok(queued) => queued,
                     Err(e) => {
                         tracing::error!(mission = mission.record().id, error = %e, "replanning failed; it stays due");
@@ -365,6 +338,25 @@ impl Planner {
                 return;
             }
         }
+    }
+}
+
+/// A plan made, with why and on what, ready to be committed.
+struct MadePlan<'a> {
+    outcome: &'a JobOutcome,
+    reason: &'a str,
+    /// When its snapshot was taken.
+    now: tokio::time::Instant,
+    basis: &'a PlanBasis,
+}
+
+impl MadePlan<'_> {
+    /// Once its changes are applied: the triggers it served are reset.
+    fn mark_committed(&self, mission: &mut Mission, demands_before: u64, reassigned: usize) {
+        mission.mark_replanned(self.now, self.basis, demands_before);
+        mission.demand_for_robots_left_idle(self.outcome);
+        let (id, replans, reason) = (mission.record().id, mission.record().replans, self.reason);
+        tracing::debug!(mission = id, %reason, reassigned, replans, "replanned");
     }
 }
 
