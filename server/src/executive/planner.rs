@@ -289,7 +289,7 @@ impl Planner {
             // behind other missions' plans, and a snapshot taken before
             // the wait missed what arrived during it, such as the robot
             // whose arrival woke the planner, which then waited a second turn.
-            let Ok(_permit) = self.permits.acquire().await else { return };
+            let Ok(turn) = self.permits.acquire().await else { return };
             let (job, basis, reason, now, policy) = {
                 let mission = cell.lock().await;
                 let now = self.clock.now();
@@ -302,6 +302,9 @@ impl Planner {
             let started = std::time::Instant::now();
             let outcome = self.threads_pool.run(move || job.run()).await;
             self.running.fetch_sub(1, Ordering::AcqRel);
+            // The turn is for the planning threads: another mission may
+            // plan while this plan waits for the mission and the disk.
+            drop(turn);
             self.metrics.observe_plan(policy, started.elapsed());
             let outcome = match outcome {
                 Ok(outcome) => outcome,
@@ -440,58 +443,76 @@ mod tests {
     /// While a plan waits for the disk (here another connection holds
     /// SQLite's write lock), its mission is free for requests and already
     /// holds the plan, but no robot is told a new task until the plan is
-    /// durable. Written under the lock, the plan kept the mission held
-    /// until the disk answered (this test then never sees the plan).
+    /// durable; and the only planning turn is free for another mission's
+    /// plan. Written under the lock, the plan kept the mission held until
+    /// the disk answered, and a plan waiting for the disk kept its turn
+    /// (this test then never sees both plans).
     #[tokio::test(flavor = "current_thread")]
-    async fn a_plan_waiting_for_the_disk_leaves_its_mission_free_and_tells_nobody() {
+    async fn plans_waiting_for_the_disk_leave_missions_and_turns_free_and_tell_nobody() {
         use sqlx::Connection;
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("p.db");
         let store = SqliteStore::open(&path, crate::Durability::Full).await.unwrap();
-        let record = store.create_mission(&nearest_spec("held"), Timestamp(1)).await.unwrap();
-        let capabilities =
-            Capabilities { sensor_range_m: 1.0, field_of_view_rad: 6.0, speed_mps: 0.5, footprint_radius_m: 0.0 };
-        let pose = Pose { position: Point2::new(0.5, 0.5), heading: 0.0 };
-        let spec = RobotSpec { name: "a".into(), capabilities, pose };
-        let robot = store.create_robot(record.id, &spec, &|_| "0".repeat(64), Timestamp(1), None).await.unwrap();
-        let now = tokio::time::Instant::now();
-        let mut mission = Mission::new(record, now);
-        mission.insert_robot(robot.clone(), now);
-        mission.apply(left_half_known(robot.id));
+        let mut cells = Vec::new();
+        for name in ["held", "next"] {
+            let record = store.create_mission(&nearest_spec(name), Timestamp(1)).await.unwrap();
+            let capabilities =
+                Capabilities { sensor_range_m: 1.0, field_of_view_rad: 6.0, speed_mps: 0.5, footprint_radius_m: 0.0 };
+            let pose = Pose { position: Point2::new(0.5, 0.5), heading: 0.0 };
+            let spec = RobotSpec { name: "a".into(), capabilities, pose };
+            let robot = store.create_robot(record.id, &spec, &|_| "0".repeat(64), Timestamp(1), None).await.unwrap();
+            let now = tokio::time::Instant::now();
+            let mut mission = Mission::new(record, now);
+            mission.insert_robot(robot.clone(), now);
+            mission.apply(left_half_known(robot.id));
+            cells.push((Arc::new(MissionCell::new(mission)), robot.id));
+        }
 
         let store: Arc<dyn Store> = Arc::new(store);
         let metrics = Arc::new(Metrics::new());
         let writer = Writer::new(store, Clock::default(), Arc::clone(&metrics));
         let ids = Arc::new(AtomicU64::new(0));
+        // One plan at a time.
         let planner = Planner::new(writer, Clock::default(), 1, 1, ids, metrics, Default::default());
-        let cell = Arc::new(MissionCell::new(mission));
+        let mut generations = Vec::new();
+        for (cell, _) in &cells {
+            generations.push(cell.lock().await.generation());
+        }
         let mut other = sqlx::SqliteConnection::connect(&format!("sqlite://{}", path.display())).await.unwrap();
         sqlx::query("BEGIN IMMEDIATE").execute(&mut other).await.unwrap();
-        planner.start(Arc::clone(&cell));
-        cell.wake.notify_one();
-        // A guard, not a measurement: the disk stays held until the plan is seen.
+        for (cell, _) in &cells {
+            planner.start(Arc::clone(cell));
+            cell.wake.notify_one();
+        }
+        // A guard, not a measurement: the disk stays held until both plans
+        // are seen. A plan that kept its turn lets the other plan only once
+        // its write has failed (SQLite's busy timeout), which reloads its
+        // mission: the generation below tells.
         let seen = tokio::time::timeout(std::time::Duration::from_secs(30), async {
-            loop {
-                let mission = cell.lock().await;
-                if mission.record().replans == 1 {
-                    let planned = mission.robot(robot.id).unwrap().current_task;
-                    assert!(planned.is_some(), "the mission holds the plan");
-                    assert!(mission.assignment_told(robot.id).unwrap().task.is_none(), "nobody is told it yet");
-                    return;
+            for (cell, _) in &cells {
+                while cell.lock().await.record().replans == 0 {
+                    tokio::task::yield_now().await;
                 }
-                drop(mission);
+            }
+        })
+        .await;
+        let mut held = Vec::new();
+        for (cell, robot) in &cells {
+            let mission = cell.lock().await;
+            let planned = mission.robot(*robot).unwrap().current_task.is_some();
+            let told = mission.assignment_told(*robot).unwrap().task.is_some();
+            held.push((mission.generation(), planned, told));
+        }
+        // Released before anything is asserted, so that a failure fails
+        // the test instead of leaving the planner waiting on the disk.
+        sqlx::query("ROLLBACK").execute(&mut other).await.unwrap();
+        seen.expect("both plans are applied while the disk is held");
+        let expected: Vec<_> = generations.iter().map(|&generation| (generation, true, false)).collect();
+        assert_eq!(held, expected, "(generation, planned, told): both plans applied, no write failed, nobody told");
+        for (cell, robot) in &cells {
+            while cell.lock().await.assignment_told(*robot).unwrap().task.is_none() {
                 tokio::task::yield_now().await;
             }
-        });
-        seen.await.expect("the plan is applied while the disk is held");
-        sqlx::query("ROLLBACK").execute(&mut other).await.unwrap();
-        loop {
-            let mission = cell.lock().await;
-            if mission.assignment_told(robot.id).unwrap().task.is_some() {
-                break;
-            }
-            drop(mission);
-            tokio::task::yield_now().await;
         }
         planner.shutdown().await;
     }
