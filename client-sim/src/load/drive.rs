@@ -1,0 +1,195 @@
+//! What each robot does during the real-rate phase: drive towards its
+//! target, send heartbeats and map patches when due (open-loop), and note
+//! when an arrival is answered by its next task.
+
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use tokio::sync::watch;
+use tokio::task::JoinSet;
+use tokio_util::sync::CancellationToken;
+use tonic::Code;
+
+use exploration::math::Point2;
+use exploration_proto::v1 as pb;
+
+use super::report::{Recorder, TRIGGER_GRACE, Triggers};
+use super::{Fleet, LoadConfig, Robot, footprint, pose_at};
+use crate::world::World;
+
+/// Keeps a robot's newest assignment from its stream, reconnecting.
+pub(super) async fn follow(
+    mut client: Fleet,
+    robot_id: u64,
+    tx: watch::Sender<Option<(pb::Assignment, Instant)>>,
+    stop: CancellationToken,
+) {
+    loop {
+        let answer = tokio::select! {
+            () = stop.cancelled() => return,
+            answer = client.watch_assignment(pb::WatchAssignmentRequest { robot_id }) => answer,
+        };
+        if let Ok(answer) = answer {
+            let mut stream = answer.into_inner();
+            loop {
+                let message = tokio::select! {
+                    () = stop.cancelled() => return,
+                    message = stream.message() => message,
+                };
+                let Ok(Some(assignment)) = message else { break };
+                let arrived = Instant::now();
+                tx.send_if_modified(|now| {
+                    let newer = now.as_ref().is_none_or(|(a, _)| assignment.version > a.version);
+                    if newer {
+                        *now = Some((assignment, arrived));
+                    }
+                    newer
+                });
+            }
+        }
+        tokio::select! {
+            () = stop.cancelled() => return,
+            () = tokio::time::sleep(Duration::from_millis(200)) => {}
+        }
+    }
+}
+
+/// Drives one robot until `until`: moves it, and sends its heartbeats and
+/// map updates when they are due, each on its own task (open-loop).
+pub(super) async fn drive(
+    robot: Arc<Robot>,
+    start: Point2,
+    world: Arc<World>,
+    config: LoadConfig,
+    recorder: Arc<Recorder>,
+    triggers: Arc<Mutex<Triggers>>,
+    until: Instant,
+) {
+    let frame = world.frame;
+    let heartbeat_every = Duration::from_secs_f64(1.0 / config.heartbeat_hz.max(1e-3));
+    let map_every = Duration::from_secs_f64(1.0 / config.map_hz.max(1e-3));
+    // Robots start out of phase, as real ones would.
+    let offset = Duration::from_secs_f64((robot.id % 97) as f64 / 97.0 * heartbeat_every.as_secs_f64());
+    let origin = Instant::now() + offset;
+    let (mut next_heartbeat, mut next_map) = (origin, origin);
+    let mut position = start;
+    let mut heading = 0.0;
+    let mut last_move = origin;
+    // The task reached and when, until the next one arrives.
+    let mut waiting: Option<(u64, Instant)> = None;
+    let mut reported = None;
+    let mut seen_completed = false;
+    let mut requests = JoinSet::new();
+    let mut assignment = robot.assignment.clone();
+    loop {
+        let due = next_heartbeat.min(next_map);
+        if due >= until {
+            break;
+        }
+        tokio::time::sleep_until(due.into()).await;
+        let now = Instant::now();
+        let current = assignment.borrow_and_update().clone();
+        let target = current.as_ref().filter(|(a, _)| a.task_id != 0).and_then(|(a, _)| Some((a.task_id, a.target?)));
+        let explores = current.as_ref().is_some_and(|(a, _)| {
+            matches!(pb::TaskKind::try_from(a.kind), Ok(pb::TaskKind::Explore | pb::TaskKind::Pin | pb::TaskKind::Goto))
+        });
+        if let Some((a, arrived)) = &current {
+            if !seen_completed && a.mission_state == pb::MissionState::Completed as i32 {
+                seen_completed = true;
+                let mut triggers = triggers.lock().unwrap_or_else(|e| e.into_inner());
+                triggers.completed.entry(robot.mission).or_insert(*arrived);
+            }
+            // The answer to an arrival: the next task, or the mission's end.
+            if let Some((task, reported)) = waiting {
+                if explores && a.task_id != task {
+                    let delay = arrived.saturating_duration_since(reported).max(Duration::from_micros(1));
+                    let mut triggers = triggers.lock().unwrap_or_else(|e| e.into_inner());
+                    triggers.answer(delay, reported, robot.mission, robot.id);
+                    waiting = None;
+                } else if a.mission_state == pb::MissionState::Completed as i32 {
+                    triggers.lock().unwrap_or_else(|e| e.into_inner()).ended_by_completion += 1;
+                    waiting = None;
+                }
+            }
+        }
+        // Move towards the target at the robot's speed.
+        let dt = now.duration_since(last_move).as_secs_f64();
+        last_move = now;
+        let mut arrived = None;
+        if let Some((task, goal)) = target {
+            let goal = Point2::new(goal.x, goal.y);
+            let to_goal = goal - position;
+            let step = config.speed_mps * dt;
+            if to_goal.norm() <= step.max(frame.resolution) {
+                position = goal;
+                if reported != Some(task) {
+                    arrived = Some(task);
+                }
+            } else {
+                heading = to_goal.y.atan2(to_goal.x);
+                position += to_goal * (step / to_goal.norm());
+            }
+        }
+        if due == next_heartbeat {
+            next_heartbeat += heartbeat_every;
+            let (state, task_id) = match (arrived, target) {
+                (Some(task), _) => (pb::RobotState::Arrived, task),
+                (None, Some((task, _))) => (pb::RobotState::Moving, task),
+                (None, None) => (pb::RobotState::Idle, 0),
+            };
+            if let Some(task) = arrived {
+                reported = Some(task);
+                // Arriving home or at a hold ends nothing the executive must answer.
+                if explores {
+                    waiting = Some((task, due));
+                }
+            }
+            let request = pb::HeartbeatRequest {
+                robot_id: robot.id,
+                pose: Some(pose_at(position, heading)),
+                state: state as i32,
+                task_id,
+                ..Default::default()
+            };
+            let (mut client, recorder) = (robot.client.clone(), Arc::clone(&recorder));
+            requests.spawn(async move {
+                let code = client.heartbeat(request).await.map_or_else(|s| s.code(), |_| Code::Ok);
+                recorder.record("Heartbeat", due, code);
+            });
+        } else {
+            next_map += map_every;
+            let seq = robot.next_seq.fetch_add(1, Ordering::AcqRel);
+            let request = pb::UpdateMapRequest {
+                robot_id: robot.id,
+                seq,
+                pose: Some(pose_at(position, heading)),
+                patches: vec![footprint(&world, position, config.sensor_range_m, config.cell_encoding)],
+                ..Default::default()
+            };
+            let (robot, recorder) = (Arc::clone(&robot), Arc::clone(&recorder));
+            requests.spawn(async move {
+                let code = match robot.client.clone().update_map(request).await {
+                    Ok(_) => {
+                        robot.acked.fetch_add(1, Ordering::AcqRel);
+                        robot.acked_seq.fetch_max(seq, Ordering::AcqRel);
+                        Code::Ok
+                    }
+                    Err(status) => status.code(),
+                };
+                recorder.record("UpdateMap", due, code);
+            });
+        }
+        // Answered requests are collected as they come.
+        while requests.try_join_next().is_some() {}
+    }
+    while requests.join_next().await.is_some() {}
+    if let Some((_, reported)) = waiting {
+        let mut triggers = triggers.lock().unwrap_or_else(|e| e.into_inner());
+        if reported + TRIGGER_GRACE >= until {
+            triggers.pending += 1;
+        } else {
+            triggers.unanswered += 1;
+        }
+    }
+}
