@@ -18,17 +18,18 @@ use exploration::math::Point2;
 
 use crate::clock::Clock;
 use crate::domain::{
-    Assignment, Bid, Heartbeat, MapUpdate, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState,
-    OperatorNote, Override, Region, RobotId, RobotRecord, RobotSpec, StoredSegmentation, TaskKind, TaskRecord,
-    Timestamp,
+    Assignment, Bid, Heartbeat, MapUpdate, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState, Region,
+    RobotId, RobotRecord, RobotSpec, StoredSegmentation, TaskKind, TaskRecord, Timestamp,
 };
 use crate::error::Error;
 use crate::store::{Changeset, Store, TaskFilter};
 use exploration::policy::PolicyConfig;
 
 mod mission;
+mod operator;
 mod ownership;
 mod planner;
+mod upkeep;
 mod writer;
 
 pub use ownership::{ReplicaSettings, keep_leases_until};
@@ -707,107 +708,6 @@ impl Executive {
         Ok(MapChanges { version: mission.map_log().version(), frame, full, patches })
     }
 
-    /// Overrides a robot's task for an operator (Simmons et al. 2000, §4.2);
-    /// the others are replanned to cover for it.
-    pub async fn override_robot(
-        &self,
-        robot_id: RobotId,
-        action: Override,
-        note: OperatorNote,
-    ) -> Result<RobotSummary, Error> {
-        let handle = self.mission_of_robot(robot_id).await?;
-        let mut mission = handle.lock().await;
-        let changes = mission.prepare_override(robot_id, action, &note, Timestamp::now(), &self.next_task_id)?;
-        self.commit(&mut mission, changes).await?;
-        tracing::info!(mission = mission.record().id, robot = robot_id, ?action, actor = %note.actor, "override");
-        self.planner.after_change(&handle, &mut mission).await;
-        let record = mission.robot(robot_id)?;
-        Ok(RobotSummary {
-            record: record.clone(),
-            target: mission.target_of(record),
-            task_kind: mission.task_kind_of(record),
-            blacklisted: mission.blacklisted(robot_id),
-        })
-    }
-
-    /// Pauses (`pause`) or resumes a mission.
-    pub async fn pause_mission(
-        &self,
-        mission_id: MissionId,
-        pause: bool,
-        note: OperatorNote,
-    ) -> Result<MissionSummary, Error> {
-        let handle = self.mission_handle(mission_id).await?;
-        let mut mission = handle.lock().await;
-        let changes = mission.prepare_pause(pause, &note, Timestamp::now())?;
-        self.commit(&mut mission, changes).await?;
-        tracing::info!(mission = mission_id, pause, actor = %note.actor, "mission paused or resumed");
-        self.planner.after_change(&handle, &mut mission).await;
-        Ok(Self::summary(&mission))
-    }
-
-    /// Forbids a region of a mission: no target is assigned inside.
-    pub async fn forbid_region(
-        &self,
-        mission_id: MissionId,
-        min: Point2,
-        max: Point2,
-        note: OperatorNote,
-    ) -> Result<Region, Error> {
-        let handle = self.mission_handle(mission_id).await?;
-        let mut mission = handle.lock().await;
-        // Reserved atomically: calls on other missions run at the same time.
-        // A refused or failed call leaves a gap, never a repeat.
-        let id = self.next_region_id.fetch_add(1, Ordering::Relaxed) + 1;
-        let (changes, region) = mission.prepare_forbid(id, min, max, &note, Timestamp::now())?;
-        self.commit(&mut mission, changes).await?;
-        tracing::info!(mission = mission_id, region = id, actor = %note.actor, "region forbidden");
-        self.planner.after_change(&handle, &mut mission).await;
-        Ok(region)
-    }
-
-    /// Gives a mission its rooms and corridors (Wurm et al. 2008, §VI) as
-    /// run-length pairs over its map (see [`exploration_proto::label_runs`]),
-    /// or, with none, sends it back to the online segmentation.
-    pub async fn set_given_segmentation(
-        &self,
-        mission_id: MissionId,
-        label_runs: &[u8],
-        note: OperatorNote,
-    ) -> Result<MissionSummary, Error> {
-        let handle = self.mission_handle(mission_id).await?;
-        let mut mission = handle.lock().await;
-        let rooms = if label_runs.is_empty() {
-            None
-        } else {
-            let frame = &mission.record().spec.frame;
-            let labels = exploration_proto::label_runs::decode(label_runs, frame.len())
-                .map_err(|e| Error::InvalidArgument(format!("label_runs {e} ({} × {})", frame.width, frame.height)))?;
-            Some(labels)
-        };
-        let changes = mission.prepare_rooms(rooms, &note, Timestamp::now())?;
-        self.commit(&mut mission, changes).await?;
-        tracing::info!(mission = mission_id, actor = %note.actor, given = mission.has_rooms(), "segmentation set");
-        self.planner.after_change(&handle, &mut mission).await;
-        Ok(Self::summary(&mission))
-    }
-
-    /// Allows a forbidden region again.
-    pub async fn allow_region(
-        &self,
-        mission_id: MissionId,
-        region: u64,
-        note: OperatorNote,
-    ) -> Result<MissionSummary, Error> {
-        let handle = self.mission_handle(mission_id).await?;
-        let mut mission = handle.lock().await;
-        let changes = mission.prepare_allow(region, &note, Timestamp::now())?;
-        self.commit(&mut mission, changes).await?;
-        tracing::info!(mission = mission_id, region, actor = %note.actor, "region allowed");
-        self.planner.after_change(&handle, &mut mission).await;
-        Ok(Self::summary(&mission))
-    }
-
     /// A receiver that changes whenever an operator's view of the mission
     /// does.
     pub async fn subscribe(&self, mission_id: MissionId) -> Result<watch::Receiver<u64>, Error> {
@@ -825,94 +725,6 @@ impl Executive {
         let file = BackupFile(self.store.backup_dir().join(name));
         self.store.backup(&file.0).await?;
         Ok(file)
-    }
-
-    /// Expires leases and detects stalls in every mission, then replans
-    /// those that changed. Runs every [`SWEEP_PERIOD`] while serving.
-    pub async fn sweep(&self) -> Result<(), Error> {
-        let handles: Vec<_> = self.missions.read().unwrap_or_else(|e| e.into_inner()).values().cloned().collect();
-        let mut failed = None;
-        for handle in handles {
-            let mut mission = handle.lock().await;
-            // A replanning that could not be committed is tried again here,
-            // so that it does not wait for the next request; missions
-            // planned off the request path also get their time triggers
-            // here. Lockstep missions plan only when a request or the
-            // sweep changed something: a simulation stays reproducible.
-            if mission.replan_failed() || !mission.record().spec.lockstep {
-                self.planner.after_change(&handle, &mut mission).await;
-            }
-            self.flush_unsaved(&mut mission).await;
-            let Some(changes) = mission.prepare_sweep(self.settings.clock.now(), Timestamp::now()) else {
-                continue;
-            };
-            // One mission's failure does not keep the others from their sweep.
-            let changes = match self.writer.write(&mut mission, changes).await {
-                Ok(changes) => changes,
-                Err(e) => {
-                    failed = Some(e);
-                    continue;
-                }
-            };
-            for change in &changes.task_changes {
-                tracing::info!(mission = mission.record().id, task = change.task_id, state = change.state.as_str(),
-                    cause = %change.transition.cause, "task ended by the executive");
-            }
-            mission.apply(changes);
-            self.planner.after_change(&handle, &mut mission).await;
-        }
-        match failed {
-            Some(e) => Err(e),
-            None => Ok(()),
-        }
-    }
-
-    /// Stops the planners (plans being committed finish first) and writes
-    /// what was written behind.
-    pub async fn close(&self) {
-        self.planner.shutdown().await;
-        let handles: Vec<_> = self.missions.read().unwrap_or_else(|e| e.into_inner()).values().cloned().collect();
-        for handle in handles {
-            self.flush_unsaved(&mut *handle.lock().await).await;
-        }
-    }
-
-    /// Writes the robot records changed by liveness reports only.
-    async fn flush_unsaved(&self, mission: &mut Mission) {
-        let Some(changes) = mission.take_unsaved() else { return };
-        if let Err(e) = self.writer.write(mission, changes).await {
-            tracing::warn!(mission = mission.record().id, error = %e, "robot poses not written; tried again at the next sweep");
-            mission.keep_unsaved_again();
-        }
-    }
-
-    /// The executive's metrics, with the gauges read from its missions now.
-    pub async fn metrics(&self) -> String {
-        self.refresh_gauges().await;
-        self.metrics.encode()
-    }
-
-    async fn refresh_gauges(&self) {
-        use crate::metrics::{Label, MissionLabel};
-        let handles: Vec<_> = self.missions.read().unwrap_or_else(|e| e.into_inner()).values().cloned().collect();
-        self.metrics.missions.clear();
-        self.metrics.robots.clear();
-        self.metrics.frontier_cells.clear();
-        self.metrics.coverage.clear();
-        for handle in handles {
-            let mission = handle.lock().await;
-            let record = mission.record();
-            let state = if record.paused { "paused" } else { record.state.as_str() };
-            self.metrics.missions.get_or_create(&Label { name: state.to_owned() }).inc();
-            for robot in mission.robots() {
-                let state = if robot.lost { "lost" } else { robot.state.as_str() };
-                self.metrics.robots.get_or_create(&Label { name: state.to_owned() }).inc();
-            }
-            let key = MissionLabel { mission: record.id };
-            self.metrics.frontier_cells.get_or_create(&key).set(mission.frontier_cells() as i64);
-            let share = mission.known_cells() as f64 / record.spec.frame.len().max(1) as f64;
-            self.metrics.coverage.get_or_create(&key).set(share);
-        }
     }
 
     /// Makes a changeset durable, then applies it to the mission in memory:

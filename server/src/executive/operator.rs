@@ -1,0 +1,115 @@
+//! What operators do to a mission (Simmons et al. 2000, §4.2: a human may
+//! override the executive): each action is prepared and checked by the
+//! mission, made durable, logged with its actor, and the mission replanned
+//! around it.
+
+use std::sync::atomic::Ordering;
+
+use exploration::math::Point2;
+
+use super::{Executive, MissionSummary, RobotSummary};
+use crate::domain::{MissionId, OperatorNote, Override, Region, RobotId, Timestamp};
+use crate::error::Error;
+
+impl Executive {
+    /// Overrides a robot's task for an operator (Simmons et al. 2000, §4.2);
+    /// the others are replanned to cover for it.
+    pub async fn override_robot(
+        &self,
+        robot_id: RobotId,
+        action: Override,
+        note: OperatorNote,
+    ) -> Result<RobotSummary, Error> {
+        let handle = self.mission_of_robot(robot_id).await?;
+        let mut mission = handle.lock().await;
+        let changes = mission.prepare_override(robot_id, action, &note, Timestamp::now(), &self.next_task_id)?;
+        self.commit(&mut mission, changes).await?;
+        tracing::info!(mission = mission.record().id, robot = robot_id, ?action, actor = %note.actor, "override");
+        self.planner.after_change(&handle, &mut mission).await;
+        let record = mission.robot(robot_id)?;
+        Ok(RobotSummary {
+            record: record.clone(),
+            target: mission.target_of(record),
+            task_kind: mission.task_kind_of(record),
+            blacklisted: mission.blacklisted(robot_id),
+        })
+    }
+
+    /// Pauses (`pause`) or resumes a mission.
+    pub async fn pause_mission(
+        &self,
+        mission_id: MissionId,
+        pause: bool,
+        note: OperatorNote,
+    ) -> Result<MissionSummary, Error> {
+        let handle = self.mission_handle(mission_id).await?;
+        let mut mission = handle.lock().await;
+        let changes = mission.prepare_pause(pause, &note, Timestamp::now())?;
+        self.commit(&mut mission, changes).await?;
+        tracing::info!(mission = mission_id, pause, actor = %note.actor, "mission paused or resumed");
+        self.planner.after_change(&handle, &mut mission).await;
+        Ok(Self::summary(&mission))
+    }
+
+    /// Forbids a region of a mission: no target is assigned inside.
+    pub async fn forbid_region(
+        &self,
+        mission_id: MissionId,
+        min: Point2,
+        max: Point2,
+        note: OperatorNote,
+    ) -> Result<Region, Error> {
+        let handle = self.mission_handle(mission_id).await?;
+        let mut mission = handle.lock().await;
+        // Reserved atomically: calls on other missions run at the same time.
+        // A refused or failed call leaves a gap, never a repeat.
+        let id = self.next_region_id.fetch_add(1, Ordering::Relaxed) + 1;
+        let (changes, region) = mission.prepare_forbid(id, min, max, &note, Timestamp::now())?;
+        self.commit(&mut mission, changes).await?;
+        tracing::info!(mission = mission_id, region = id, actor = %note.actor, "region forbidden");
+        self.planner.after_change(&handle, &mut mission).await;
+        Ok(region)
+    }
+
+    /// Gives a mission its rooms and corridors (Wurm et al. 2008, §VI) as
+    /// run-length pairs over its map (see [`exploration_proto::label_runs`]),
+    /// or, with none, sends it back to the online segmentation.
+    pub async fn set_given_segmentation(
+        &self,
+        mission_id: MissionId,
+        label_runs: &[u8],
+        note: OperatorNote,
+    ) -> Result<MissionSummary, Error> {
+        let handle = self.mission_handle(mission_id).await?;
+        let mut mission = handle.lock().await;
+        let rooms = if label_runs.is_empty() {
+            None
+        } else {
+            let frame = &mission.record().spec.frame;
+            let labels = exploration_proto::label_runs::decode(label_runs, frame.len())
+                .map_err(|e| Error::InvalidArgument(format!("label_runs {e} ({} × {})", frame.width, frame.height)))?;
+            Some(labels)
+        };
+        let changes = mission.prepare_rooms(rooms, &note, Timestamp::now())?;
+        self.commit(&mut mission, changes).await?;
+        tracing::info!(mission = mission_id, actor = %note.actor, given = mission.has_rooms(), "segmentation set");
+        self.planner.after_change(&handle, &mut mission).await;
+        Ok(Self::summary(&mission))
+    }
+
+    /// Allows a forbidden region again.
+    pub async fn allow_region(
+        &self,
+        mission_id: MissionId,
+        region: u64,
+        note: OperatorNote,
+    ) -> Result<MissionSummary, Error> {
+        let handle = self.mission_handle(mission_id).await?;
+        let mut mission = handle.lock().await;
+        let changes = mission.prepare_allow(region, &note, Timestamp::now())?;
+        self.commit(&mut mission, changes).await?;
+        tracing::info!(mission = mission_id, region, actor = %note.actor, "region allowed");
+        self.planner.after_change(&handle, &mut mission).await;
+        Ok(Self::summary(&mission))
+    }
+}
