@@ -8,10 +8,11 @@ use std::sync::atomic::AtomicU64;
 
 use exploration::grid::CellClass;
 use exploration::math::Point2;
+use exploration::policy::PolicyConfig;
 
 use super::{Mission, TaskDraft, transition};
 use crate::domain::{
-    Actor, OperatorNote, Override, Region, RobotId, Rooms, TaskKind, TaskRecord, TaskState, Timestamp,
+    Actor, MissionEvent, OperatorNote, Override, Region, RobotId, Rooms, TaskKind, TaskRecord, TaskState, Timestamp,
 };
 use crate::error::Error;
 use crate::store::Changeset;
@@ -20,6 +21,29 @@ use crate::store::Changeset;
 const PIN_RADIUS_M: f64 = 1.0;
 
 impl Mission {
+    /// Checks a policy change and describes it.
+    pub(crate) fn prepare_policy(&self, policy: PolicyConfig, actor: &str, reason: &str, now: Timestamp) -> Changeset {
+        let before = self.record.spec.policy.name();
+        let detail = if reason.is_empty() {
+            format!("{before} -> {} {:?}", policy.name(), policy.params())
+        } else {
+            format!("{before} -> {} {:?}: {reason}", policy.name(), policy.params())
+        };
+        Changeset {
+            policy: Some((self.record.id, policy)),
+            events: vec![MissionEvent {
+                id: 0,
+                mission_id: self.record.id,
+                at: now,
+                kind: "policy_changed".to_owned(),
+                detail,
+                actor: actor.to_owned(),
+            }],
+            at: Some(now),
+            ..Changeset::default()
+        }
+    }
+
     /// Describes an override of a robot's task.
     pub(crate) fn prepare_override(
         &self,
