@@ -8,7 +8,7 @@ use crate::error::Error;
 
 impl Executive {
     /// Expires leases and detects stalls in every mission, then replans
-    /// those that changed. Runs every [`SWEEP_PERIOD`] while serving.
+    /// those that changed. Runs every [`SWEEP_PERIOD`](super::SWEEP_PERIOD) while serving.
     pub async fn sweep(&self) -> Result<(), Error> {
         let handles: Vec<_> = self.missions.read().unwrap_or_else(|e| e.into_inner()).values().cloned().collect();
         let mut failed = None;
