@@ -5,15 +5,17 @@
 //! 3 not found, 4 refused in the current state (precondition, invalid
 //! argument, limits), 5 not authenticated or not allowed.
 
+mod cli;
 mod output;
 mod picture;
 
+use cli::{Cli, Command, MapCommand, MissionCommand, OverrideAction};
+
 use std::collections::HashMap;
-use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, anyhow, bail};
-use clap::{Parser, Subcommand};
+use clap::Parser;
 use exploration_proto::replicas::Replicas;
 use tonic::Code;
 use tonic::service::interceptor::InterceptedService;
@@ -22,242 +24,6 @@ use exploration_proto::Bearer;
 use exploration_proto::v1 as pb;
 use exploration_proto::v1::missions_client::MissionsClient;
 use exploration_proto::v1::override_robot_request::{Action, Cancel, Hold, Home, Release};
-
-#[derive(Debug, Parser)]
-#[command(name = "coordctl", version, about = "Watch and steer robot fleets exploring through the executive")]
-struct Cli {
-    /// The executive's address; replicas sharing a database: their addresses, comma-separated.
-    #[arg(long, global = true, env = "COORDINATOR_URL", default_value = "http://127.0.0.1:50051")]
-    server: String,
-    /// The operator token (see `coordinator --operator-token`).
-    #[arg(long, global = true, env = "COORDINATOR_TOKEN", hide_env_values = true)]
-    token: Option<String>,
-    /// Your name, recorded with every change you make on an executive that
-    /// runs open; one that checks tokens records the name of your token.
-    #[arg(long = "as", global = true, env = "USER", default_value = "operator")]
-    actor: String,
-    /// PEM CA certificate(s) to trust for an `https://` executive (default:
-    /// the system's roots).
-    #[arg(long, global = true, env = "COORDINATOR_TLS_CA")]
-    tls_ca: Option<std::path::PathBuf>,
-    /// PEM client certificate, when the executive asks for one (mutual TLS).
-    #[arg(long, global = true, env = "COORDINATOR_TLS_CLIENT_CERT", requires = "tls_key")]
-    tls_cert: Option<std::path::PathBuf>,
-    /// PEM key of --tls-cert.
-    #[arg(long, global = true, env = "COORDINATOR_TLS_CLIENT_KEY", requires = "tls_cert")]
-    tls_key: Option<std::path::PathBuf>,
-    /// Print JSON instead of tables.
-    #[arg(long, global = true)]
-    json: bool,
-    #[command(subcommand)]
-    command: Command,
-}
-
-#[derive(Debug, Subcommand)]
-enum Command {
-    /// List, show, create, pause or resume missions, or change a mission's
-    /// policy (`missions` alone lists them).
-    #[command(visible_alias = "mission")]
-    Missions {
-        #[command(subcommand)]
-        command: Option<MissionCommand>,
-    },
-    /// List the policies the executive offers, with their parameters.
-    Policies,
-    /// List a mission's robots: state, task, pose, liveness.
-    Robots { mission: u64 },
-    /// A mission's or a robot's task timeline, newest first.
-    #[command(visible_alias = "history")]
-    Tasks {
-        mission: u64,
-        /// Only this robot's (id, or name).
-        #[arg(long)]
-        robot: Option<String>,
-        /// Only tasks of this kind.
-        #[arg(long, value_parser = ["explore", "goto", "hold", "home", "pin"])]
-        kind: Option<String>,
-        /// Only tasks that have not ended.
-        #[arg(long)]
-        open: bool,
-        /// At most this many.
-        #[arg(long, default_value_t = 50)]
-        limit: u32,
-        /// Every transition of every task, with who and why.
-        #[arg(long)]
-        history: bool,
-    },
-    /// The mission's events: policy changes, overrides, pauses, lost robots ...
-    Events { mission: u64 },
-    /// Give a robot an operator task, or hand it back to the policy.
-    Override {
-        mission: u64,
-        /// The robot's name or id.
-        robot: String,
-        #[command(subcommand)]
-        action: OverrideAction,
-        /// Why, for the record.
-        #[arg(long, global = true, default_value = "")]
-        reason: String,
-    },
-    /// Pin the frontier at x,y to a robot: it explores it, the others keep
-    /// away (the same as `override MISSION ROBOT pin X,Y`).
-    Pin {
-        mission: u64,
-        robot: String,
-        #[arg(value_parser = parse_point, allow_hyphen_values = true)]
-        point: pb::Point,
-        #[arg(long, default_value = "")]
-        reason: String,
-    },
-    /// Forbid a rectangle (metres: x0,y0,x1,y1): no target is assigned inside.
-    Forbid {
-        mission: u64,
-        #[arg(value_parser = parse_rect, allow_hyphen_values = true)]
-        area: pb::Rect,
-        #[arg(long, default_value = "")]
-        reason: String,
-    },
-    /// Lift a forbidden region.
-    Allow {
-        mission: u64,
-        region: u64,
-        #[arg(long, default_value = "")]
-        reason: String,
-    },
-    /// Follow a mission live: one line (or JSON object) per change.
-    Watch {
-        mission: u64,
-        /// Stop after this many views.
-        #[arg(long)]
-        count: Option<usize>,
-    },
-    /// Give a mission its rooms and corridors (Wurm et al. 2008, §VI): the
-    /// segmentation of the finished building's map at MAP (map_server YAML
-    /// of the same area as the mission's map), which the `segmentation`
-    /// policy then plans on; or `--online` to go back to segmenting the
-    /// explored map as it grows.
-    Rooms {
-        mission: u64,
-        #[arg(required_unless_present = "online", conflicts_with = "online")]
-        map: Option<PathBuf>,
-        #[arg(long)]
-        online: bool,
-        #[arg(long, default_value = "")]
-        reason: String,
-    },
-    /// The fused map.
-    #[command(subcommand)]
-    Map(MapCommand),
-    /// A consistent copy of the executive's whole database, taken while
-    /// missions run, written to FILE (which must not exist); start a
-    /// coordinator with `--db FILE` to resume from it.
-    Backup { file: std::path::PathBuf },
-}
-
-#[derive(Debug, Subcommand)]
-enum MapCommand {
-    /// Export the fused map as a PNG: occupancy, frontier, segments, robots,
-    /// targets and forbidden regions.
-    Export {
-        mission: u64,
-        #[arg(long)]
-        png: PathBuf,
-        /// Size of the longer side, pixels.
-        #[arg(long, default_value_t = 1200)]
-        px: u32,
-        /// Tint the segmentation's segments.
-        #[arg(long)]
-        segments: bool,
-    },
-}
-
-#[derive(Debug, Subcommand)]
-enum MissionCommand {
-    /// Every mission with its state and counters.
-    List,
-    /// Everything about one mission.
-    Show { mission: u64 },
-    /// Create a mission over the frame of a map_server YAML, or an explicit frame.
-    Create {
-        #[arg(long, default_value = "mission")]
-        name: String,
-        /// Take the frame (size, resolution, origin) from this map.
-        #[arg(long, conflicts_with_all = ["width", "height"])]
-        map: Option<PathBuf>,
-        #[arg(long, requires = "height")]
-        width: Option<u32>,
-        #[arg(long, requires = "width")]
-        height: Option<u32>,
-        /// Metres per cell (with --map: defaults to the map's).
-        #[arg(long)]
-        resolution: Option<f64>,
-        /// World position of cell (0, 0)'s lower-left corner, x,y.
-        #[arg(long, value_parser = parse_point)]
-        origin: Option<pb::Point>,
-        #[arg(long, default_value = "burgard")]
-        policy: String,
-        /// A policy parameter, name=value; repeat for more.
-        #[arg(long = "param", value_parser = parse_param)]
-        params: Vec<(String, f64)>,
-        /// Seconds without news after which a robot loses its task.
-        #[arg(long)]
-        lease: Option<f64>,
-        /// Seconds without progress after which a task fails.
-        #[arg(long)]
-        stall: Option<f64>,
-        /// Where robots meet when exploration is done, x,y.
-        #[arg(long, value_parser = parse_point)]
-        rendezvous: Option<pb::Point>,
-    },
-    /// Robots hold where they are until resumed.
-    Pause {
-        mission: u64,
-        #[arg(long, default_value = "")]
-        reason: String,
-    },
-    /// Robots get targets again.
-    Resume {
-        mission: u64,
-        #[arg(long, default_value = "")]
-        reason: String,
-    },
-    /// Show the policy, or switch to another one while the mission runs.
-    Policy {
-        mission: u64,
-        name: Option<String>,
-        #[arg(long = "param", value_parser = parse_param)]
-        params: Vec<(String, f64)>,
-        #[arg(long, default_value = "")]
-        reason: String,
-    },
-}
-
-#[derive(Debug, Clone, Subcommand)]
-enum OverrideAction {
-    /// Go to a point x,y (metres); done on arrival.
-    Goto {
-        #[arg(value_parser = parse_point, allow_hyphen_values = true)]
-        point: pb::Point,
-    },
-    /// Explore a rectangle x0,y0,x1,y1; done when no reachable frontier is left inside.
-    Region {
-        #[arg(value_parser = parse_rect, allow_hyphen_values = true)]
-        area: pb::Rect,
-    },
-    /// Explore the frontier at x,y; other robots stay away from it meanwhile.
-    Pin {
-        #[arg(value_parser = parse_point, allow_hyphen_values = true)]
-        point: pb::Point,
-    },
-    /// Stay put until released.
-    Hold,
-    /// Go to its start pose (or the rendezvous).
-    Home,
-    /// End its current task and hand it back to the policy.
-    Release,
-    /// Cancel its override and hand it back to the policy.
-    Cancel,
-}
 
 type Missions = MissionsClient<InterceptedService<Replicas, Bearer>>;
 
@@ -667,20 +433,6 @@ fn task_kind(name: &str) -> pb::TaskKind {
     }
 }
 
-fn numbers<const N: usize>(text: &str, what: &str) -> Result<[f64; N], String> {
-    let values: Vec<f64> = text
-        .split(',')
-        .map(|part| part.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| format!("`{text}` is not {what}"))?;
-    values.try_into().map_err(|_| format!("`{text}` is not {what}"))
-}
-
-fn parse_point(text: &str) -> Result<pb::Point, String> {
-    let [x, y] = numbers::<2>(text, "x,y in metres")?;
-    Ok(pb::Point { x, y })
-}
-
 /// The rooms of the finished map at `yaml`, cell by cell over the mission's
 /// frame; refused unless the map covers the same cells.
 fn rooms_of(yaml: &std::path::Path, frame: &pb::MapFrame) -> anyhow::Result<Vec<u32>> {
@@ -709,32 +461,9 @@ fn rooms_of(yaml: &std::path::Path, frame: &pb::MapFrame) -> anyhow::Result<Vec<
     Ok(world.given_rooms())
 }
 
-fn parse_rect(text: &str) -> Result<pb::Rect, String> {
-    let [x0, y0, x1, y1] = numbers::<4>(text, "x0,y0,x1,y1 in metres")?;
-    Ok(pb::Rect { min_x: x0.min(x1), min_y: y0.min(y1), max_x: x0.max(x1), max_y: y0.max(y1) })
-}
-
-fn parse_param(text: &str) -> Result<(String, f64), String> {
-    let (name, value) = text.split_once('=').ok_or_else(|| format!("`{text}` is not name=value"))?;
-    let value = value.trim().parse().map_err(|_| format!("`{value}` in `{text}` is not a number"))?;
-    Ok((name.trim().to_owned(), value))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn points_and_rectangles_parse_and_rectangles_are_normalized() {
-        let p = parse_point("1.5,-2").unwrap();
-        assert_eq!((p.x, p.y), (1.5, -2.0));
-        let r = parse_rect("4,3,1,-1").unwrap();
-        assert_eq!((r.min_x, r.min_y, r.max_x, r.max_y), (1.0, -1.0, 4.0, 3.0));
-        assert!(parse_point("1,2,3").is_err());
-        assert!(parse_rect("a,b,c,d").is_err());
-        assert_eq!(parse_param("beta=2").unwrap(), ("beta".into(), 2.0));
-        assert!(parse_param("beta").is_err());
-    }
 
     #[test]
     fn statuses_map_to_documented_exit_codes() {
@@ -745,11 +474,5 @@ mod tests {
         assert_eq!(code(tonic::Status::unauthenticated("x")), 5);
         assert_eq!(code(tonic::Status::internal("x")), 1);
         assert_eq!(exit_code(&anyhow::Error::new(Usage("x".into()))), 2);
-    }
-
-    #[test]
-    fn the_command_line_is_consistent() {
-        use clap::CommandFactory;
-        Cli::command().debug_assert();
     }
 }
