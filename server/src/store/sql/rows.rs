@@ -487,7 +487,12 @@ pub(super) const CELLS_LZ4: i64 = 1;
 
 /// A patch's cells as written now ([`CELLS_LZ4`]).
 pub(super) fn encode_cells(patch: &Patch) -> Vec<u8> {
-    let raw: Vec<u8> = patch.log_odds().iter().flat_map(|v| v.to_le_bytes()).collect();
+    // Sized once and filled value by value: collecting a flat_map of the
+    // four bytes grew the vector as it went (1 % of a map update's CPU).
+    let mut raw = Vec::with_capacity(patch.log_odds().len() * 4);
+    for v in patch.log_odds() {
+        raw.extend_from_slice(&v.to_le_bytes());
+    }
     lz4_flex::block::compress(&raw)
 }
 
