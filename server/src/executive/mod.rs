@@ -23,7 +23,6 @@ use crate::domain::{
 };
 use crate::error::Error;
 use crate::store::{Changeset, Store, TaskFilter};
-use exploration::policy::PolicyConfig;
 
 mod mission;
 mod operator;
@@ -584,23 +583,6 @@ impl Executive {
         mission.heard_from(robot_id, self.settings.clock.now());
         self.planner.after_change(&handle, &mut mission).await;
         Ok((bids.len(), mission.assignment(robot_id)?))
-    }
-
-    /// Changes a running mission's policy; the next replanning uses it.
-    pub async fn set_policy(
-        &self,
-        mission_id: MissionId,
-        policy: PolicyConfig,
-        actor: &str,
-        reason: &str,
-    ) -> Result<MissionSummary, Error> {
-        let handle = self.mission_handle(mission_id).await?;
-        let mut mission = handle.lock().await;
-        let changes = mission.prepare_policy(policy, actor, reason, Timestamp::now());
-        self.commit(&mut mission, changes).await?;
-        tracing::info!(mission = mission_id, policy = mission.record().spec.policy.name(), actor, "policy changed");
-        self.planner.after_change(&handle, &mut mission).await;
-        Ok(Self::summary(&mission))
     }
 
     /// A mission's latest `limit` events, newest first.

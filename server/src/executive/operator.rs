@@ -6,12 +6,32 @@
 use std::sync::atomic::Ordering;
 
 use exploration::math::Point2;
+use exploration::policy::PolicyConfig;
 
+use super::mission::Mission;
+use super::planner::MissionCell;
 use super::{Executive, MissionSummary, RobotSummary};
 use crate::domain::{MissionId, OperatorNote, Override, Region, RobotId, Timestamp};
 use crate::error::Error;
+use crate::store::Changeset;
 
 impl Executive {
+    /// Changes a running mission's policy; the next replanning uses it.
+    pub async fn set_policy(
+        &self,
+        mission_id: MissionId,
+        policy: PolicyConfig,
+        actor: &str,
+        reason: &str,
+    ) -> Result<MissionSummary, Error> {
+        let handle = self.mission_handle(mission_id).await?;
+        let mut mission = handle.lock().await;
+        let changes = mission.prepare_policy(policy, actor, reason, Timestamp::now());
+        self.operate(&handle, &mut mission, changes).await?;
+        tracing::info!(mission = mission_id, policy = mission.record().spec.policy.name(), actor, "policy changed");
+        Ok(Self::summary(&mission))
+    }
+
     /// Overrides a robot's task for an operator (Simmons et al. 2000, §4.2);
     /// the others are replanned to cover for it.
     pub async fn override_robot(
@@ -23,9 +43,8 @@ impl Executive {
         let handle = self.mission_of_robot(robot_id).await?;
         let mut mission = handle.lock().await;
         let changes = mission.prepare_override(robot_id, action, &note, Timestamp::now(), &self.next_task_id)?;
-        self.commit(&mut mission, changes).await?;
+        self.operate(&handle, &mut mission, changes).await?;
         tracing::info!(mission = mission.record().id, robot = robot_id, ?action, actor = %note.actor, "override");
-        self.planner.after_change(&handle, &mut mission).await;
         let record = mission.robot(robot_id)?;
         Ok(RobotSummary {
             record: record.clone(),
@@ -45,9 +64,8 @@ impl Executive {
         let handle = self.mission_handle(mission_id).await?;
         let mut mission = handle.lock().await;
         let changes = mission.prepare_pause(pause, &note, Timestamp::now())?;
-        self.commit(&mut mission, changes).await?;
+        self.operate(&handle, &mut mission, changes).await?;
         tracing::info!(mission = mission_id, pause, actor = %note.actor, "mission paused or resumed");
-        self.planner.after_change(&handle, &mut mission).await;
         Ok(Self::summary(&mission))
     }
 
@@ -65,9 +83,8 @@ impl Executive {
         // A refused or failed call leaves a gap, never a repeat.
         let id = self.next_region_id.fetch_add(1, Ordering::Relaxed) + 1;
         let (changes, region) = mission.prepare_forbid(id, min, max, &note, Timestamp::now())?;
-        self.commit(&mut mission, changes).await?;
+        self.operate(&handle, &mut mission, changes).await?;
         tracing::info!(mission = mission_id, region = id, actor = %note.actor, "region forbidden");
-        self.planner.after_change(&handle, &mut mission).await;
         Ok(region)
     }
 
@@ -91,9 +108,8 @@ impl Executive {
             Some(labels)
         };
         let changes = mission.prepare_rooms(rooms, &note, Timestamp::now())?;
-        self.commit(&mut mission, changes).await?;
+        self.operate(&handle, &mut mission, changes).await?;
         tracing::info!(mission = mission_id, actor = %note.actor, given = mission.has_rooms(), "segmentation set");
-        self.planner.after_change(&handle, &mut mission).await;
         Ok(Self::summary(&mission))
     }
 
@@ -107,9 +123,15 @@ impl Executive {
         let handle = self.mission_handle(mission_id).await?;
         let mut mission = handle.lock().await;
         let changes = mission.prepare_allow(region, &note, Timestamp::now())?;
-        self.commit(&mut mission, changes).await?;
+        self.operate(&handle, &mut mission, changes).await?;
         tracing::info!(mission = mission_id, region, actor = %note.actor, "region allowed");
-        self.planner.after_change(&handle, &mut mission).await;
         Ok(Self::summary(&mission))
+    }
+
+    /// Commits an operator's changeset, then replans the mission around it.
+    async fn operate(&self, handle: &MissionCell, mission: &mut Mission, changes: Changeset) -> Result<(), Error> {
+        self.commit(mission, changes).await?;
+        self.planner.after_change(handle, mission).await;
+        Ok(())
     }
 }
