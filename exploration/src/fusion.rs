@@ -155,14 +155,15 @@ impl Patch {
     pub fn from_occupancy_percent(rect: CellRect, occupancy: &[u8]) -> Result<Self, PatchError> {
         Self::check_count(rect, occupancy.len())?;
         let table = &*LOG_ODDS_OF_PERCENT;
-        let log_odds = occupancy
-            .iter()
-            .enumerate()
-            .map(|(index, &value)| match value {
-                UNKNOWN_PERCENT => Ok(f32::NAN),
-                _ => table.get(usize::from(value)).copied().ok_or(PatchError::PercentOutOfRange { index, value }),
-            })
-            .collect::<Result<Vec<_>, _>>()?;
+        // Sized once: collecting into a Result cannot know the length, and
+        // grew the vector a dozen times for a sensor's footprint.
+        let mut log_odds = Vec::with_capacity(occupancy.len());
+        for (index, &value) in occupancy.iter().enumerate() {
+            log_odds.push(match value {
+                UNKNOWN_PERCENT => f32::NAN,
+                _ => *table.get(usize::from(value)).ok_or(PatchError::PercentOutOfRange { index, value })?,
+            });
+        }
         Ok(Self { rect, log_odds })
     }
 
@@ -197,17 +198,14 @@ impl Patch {
         if !unknown.is_empty() && unknown.len() as u64 != expected {
             return Err(PatchError::UnknownMaskLength { expected, got: unknown.len() });
         }
-        let log_odds = values
-            .iter()
-            .enumerate()
-            .map(|(index, &value)| {
-                if unknown.get(index).copied().unwrap_or(false) {
-                    Ok(f32::NAN)
-                } else {
-                    convert(index, value).map(|l| l.clamp(LOG_ODDS_MIN, LOG_ODDS_MAX))
-                }
-            })
-            .collect::<Result<Vec<_>, _>>()?;
+        let mut log_odds = Vec::with_capacity(values.len());
+        for (index, &value) in values.iter().enumerate() {
+            log_odds.push(if unknown.get(index).copied().unwrap_or(false) {
+                f32::NAN
+            } else {
+                convert(index, value)?.clamp(LOG_ODDS_MIN, LOG_ODDS_MAX)
+            });
+        }
         Ok(Self { rect, log_odds })
     }
 
