@@ -325,9 +325,13 @@ fn missions_client(config: &RunConfig, url: &str, token: Option<&str>) -> Result
     }
     let channel = Replicas::from_list(url, config.tls.as_ref())
         .map_err(|e| SimError::Executive(format!("bad executive URL or TLS settings for {url}: {e}")))?;
-    let bearer = exploration_proto::Bearer::new(token)
-        .map_err(|e| SimError::Executive(format!("the token is not valid metadata: {e}")))?;
-    Ok(MissionsClient::with_interceptor(channel, bearer))
+    Ok(MissionsClient::with_interceptor(channel, bearer(token)?))
+}
+
+/// The interceptor that sends `token`, if it is valid metadata.
+pub(crate) fn bearer(token: Option<&str>) -> Result<exploration_proto::Bearer, SimError> {
+    exploration_proto::Bearer::new(token)
+        .map_err(|e| SimError::Executive(format!("the token is not valid metadata: {e}")))
 }
 
 /// Creates the run's mission, in lockstep so that a seed gives the same run

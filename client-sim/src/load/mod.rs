@@ -44,7 +44,7 @@ use exploration_proto::v1 as pb;
 use exploration_proto::v1::fleet_client::FleetClient;
 use exploration_proto::v1::missions_client::MissionsClient;
 
-use crate::fleet::{SimError, WorldSpec};
+use crate::fleet::{SimError, WorldSpec, bearer};
 use crate::world::{StartChoice, World};
 
 pub use report::{CallReport, CapacityReport, Latency, LoadReport, ProcessReport, SlowTrigger, TRIGGER_GRACE};
@@ -232,10 +232,6 @@ impl Connector<'_> {
             .map(|e| e.tcp_nodelay(true).timeout(Duration::from_secs(10)).connect_lazy())
             .map_err(|e| SimError::Executive(format!("bad executive URL or TLS settings for {}: {e}", self.url)))
     }
-}
-
-fn bearer(token: Option<&str>) -> Result<Bearer, SimError> {
-    Bearer::new(token).map_err(|e| SimError::Executive(format!("the token is not valid metadata: {e}")))
 }
 
 async fn run_against(
