@@ -8,8 +8,10 @@
 //! - [`fleet`]: runs a mission with N robots and measures it.
 //! - [`experiment`]: matrices of runs, in parallel, resumable.
 //! - [`runs`]: their results, `runs.csv` and `summary.csv`.
+//! - [`bound`]: how few steps any policy could take in a run.
 //! - [`plots`], [`picture`], [`stats`], [`report`]: what the experiments show.
 
+pub mod bound;
 pub mod experiment;
 pub mod fleet;
 pub mod generate;

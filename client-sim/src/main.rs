@@ -46,6 +46,20 @@ enum Command {
     Load(Box<LoadArgs>),
     /// Plots latency against offered load from `load --json` reports.
     LoadPlot(LoadPlotArgs),
+    /// Prints how few steps any policy could take in each cell of an
+    /// experiment (a lower bound on steps to full coverage), and each
+    /// policy's mean steps against it from the experiment's runs.
+    Bound(BoundArgs),
+}
+
+#[derive(Debug, Args)]
+struct BoundArgs {
+    /// The experiment file (TOML; see experiments/).
+    #[arg(long)]
+    config: PathBuf,
+    /// Folder holding its runs.csv (default: docs/results/<experiment name>).
+    #[arg(long)]
+    runs: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -400,6 +414,7 @@ async fn main() -> anyhow::Result<()> {
         Command::Report(args) => report(args),
         Command::Load(args) => load(*args).await,
         Command::LoadPlot(args) => load_plot(args),
+        Command::Bound(args) => bound(args),
     }
 }
 
@@ -539,6 +554,41 @@ async fn experiment(args: ExperimentArgs) -> anyhow::Result<()> {
         .await
         .with_context(|| format!("experiment {} failed", args.config.display()))?;
     eprintln!("results in {}", out.display());
+    Ok(())
+}
+
+fn bound(args: BoundArgs) -> anyhow::Result<()> {
+    use client_sim::bound::{against_runs, matrix_bounds};
+
+    let experiment = Experiment::load(&args.config)?;
+    let config_dir = args.config.parent().unwrap_or_else(|| std::path::Path::new("."));
+    let bounds = matrix_bounds(&experiment, config_dir).map_err(anyhow::Error::msg)?;
+    println!("world,robots,comm_range,seed,travel,pairs,sweep,bound");
+    for cell in &bounds {
+        let (run, b) = (&cell.run, &cell.bound);
+        println!(
+            "{},{},{},{},{},{},{},{}",
+            run.world,
+            run.robots,
+            run.comm,
+            run.seed,
+            b.travel,
+            b.pairs,
+            b.sweep,
+            b.steps()
+        );
+    }
+    let dir = args.runs.unwrap_or_else(|| PathBuf::from("docs/results").join(&experiment.name));
+    let runs = client_sim::runs::read_runs(&dir)?;
+    if runs.is_empty() {
+        eprintln!("no runs in {} to hold against the bounds", dir.display());
+        return Ok(());
+    }
+    println!("\nlabel,robots,completed_runs,mean_steps,mean_bound,steps_over_bound");
+    for a in against_runs(&bounds, &runs) {
+        let ratio = a.mean_steps / a.mean_bound;
+        println!("{},{},{},{:.1},{:.1},{ratio:.3}", a.label, a.robots, a.runs, a.mean_steps, a.mean_bound);
+    }
     Ok(())
 }
 

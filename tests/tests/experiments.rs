@@ -37,6 +37,18 @@ async fn the_ci_experiment_runs_end_to_end_and_resumes() {
     assert_eq!(read_runs(out.path()).unwrap().len(), 8);
     // The report reads the results.
     let experiment = client_sim::experiment::Experiment::load(&config).unwrap();
+    // No run takes fewer steps than the lower bound of its cell, and the
+    // bound is more than nothing.
+    let bounds = client_sim::bound::matrix_bounds(&experiment, config.parent().unwrap()).unwrap();
+    assert_eq!(bounds.len(), 4, "2 team sizes × 2 seeds");
+    for row in &rows {
+        let cell = bounds
+            .iter()
+            .find(|c| c.run.robots.to_string() == row["robots"] && c.run.seed.to_string() == row["seed"])
+            .unwrap();
+        let steps: u64 = row["steps"].parse().unwrap();
+        assert!(cell.bound.steps() > 0 && steps >= cell.bound.steps(), "{steps} steps against {:?}", cell.bound);
+    }
     let report = out.path().join("results.md");
     client_sim::report::write_report(&[(experiment, out.path().to_owned())], &report).unwrap();
     let text = std::fs::read_to_string(&report).unwrap();

@@ -82,7 +82,7 @@ pub struct RemoteExecutive {
 }
 
 /// The run configuration of one run of the matrix.
-fn run_config(
+pub(crate) fn run_config(
     experiment: &Experiment,
     dir: &Path,
     spec: &RunSpec,

@@ -201,7 +201,7 @@ pub async fn run(config: &RunConfig) -> Result<RunReport, SimError> {
 
 /// The cells the robots start on: all on the world's start, or spread over
 /// random cells reachable from it.
-fn start_cells(world: &World, config: &RunConfig) -> Vec<Cell> {
+pub(crate) fn start_cells(world: &World, config: &RunConfig) -> Vec<Cell> {
     match config.layout {
         Layout::Together => packed_around(world, world.start, config.robots),
         Layout::Spread => {
