@@ -21,7 +21,8 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 
-use tokio::sync::{Mutex, MutexGuard, Notify, Semaphore};
+use prometheus_client::metrics::gauge::Gauge;
+use tokio::sync::{Mutex, MutexGuard, Notify, Semaphore, SemaphorePermit};
 use tokio::task::JoinSet;
 use tokio_util::sync::CancellationToken;
 
@@ -289,7 +290,7 @@ impl Planner {
             // behind other missions' plans, and a snapshot taken before
             // the wait missed what arrived during it, such as the robot
             // whose arrival woke the planner, which then waited a second turn.
-            let Ok(turn) = self.permits.acquire().await else { return };
+            let Some(turn) = self.take_turn().await else { return };
             let (job, basis, reason, now, policy) = {
                 let mission = cell.lock().await;
                 let now = self.clock.now();
@@ -341,6 +342,37 @@ impl Planner {
                 return;
             }
         }
+    }
+}
+
+impl Planner {
+    /// A planning turn, counted in `planner_busy` while it is waited for and
+    /// while it is held.
+    async fn take_turn(&self) -> Option<Busy<'_>> {
+        let mut busy = Busy::new(&self.metrics.planner_busy);
+        busy.turn = Some(self.permits.acquire().await.ok()?);
+        Some(busy)
+    }
+}
+
+/// A plan counted in `planner_busy` from the moment it waits for a turn
+/// until it gives the turn back.
+struct Busy<'a> {
+    gauge: &'a Gauge,
+    turn: Option<SemaphorePermit<'a>>,
+}
+
+impl<'a> Busy<'a> {
+    fn new(gauge: &'a Gauge) -> Self {
+        gauge.inc();
+        Self { gauge, turn: None }
+    }
+}
+
+impl Drop for Busy<'_> {
+    fn drop(&mut self) {
+        self.turn = None;
+        self.gauge.dec();
     }
 }
 
@@ -425,6 +457,7 @@ mod tests {
             tokio::task::yield_now().await;
         }
         // The planner is waiting its turn; a robot joins meanwhile.
+        assert_eq!(metrics.planner_busy.get(), 1, "a plan waits for a turn");
         cell.lock().await.insert_robot(robots[2].clone(), now);
         drop(turn);
         // The plan is committed through the store's writer thread.
@@ -432,6 +465,7 @@ mod tests {
             tokio::task::yield_now().await;
         }
         assert_eq!(metrics.stale_plans.get(), 0, "the plan was made once");
+        assert_eq!(metrics.planner_busy.get(), 0, "and gave its turn back");
         let mission = cell.lock().await;
         for robot in &robots {
             assert!(mission.robot(robot.id).unwrap().current_task.is_some(), "{} has a task", robot.name);
