@@ -283,6 +283,14 @@ impl Planner {
         Ok(queued)
     }
 
+    /// A planning turn, counted in `planner_busy` while it is waited for and
+    /// while it is held.
+    async fn take_turn(&self) -> Option<Busy<'_>> {
+        let mut busy = Busy::new(&self.metrics.planner_busy);
+        busy.turn = Some(self.permits.acquire().await.ok()?);
+        Some(busy)
+    }
+
     /// Plans a mission off the request path (see the module).
     async fn plan_off_path(&self, cell: &MissionCell) {
         for _ in 0..ATTEMPTS {
@@ -342,16 +350,6 @@ impl Planner {
                 return;
             }
         }
-    }
-}
-
-impl Planner {
-    /// A planning turn, counted in `planner_busy` while it is waited for and
-    /// while it is held.
-    async fn take_turn(&self) -> Option<Busy<'_>> {
-        let mut busy = Busy::new(&self.metrics.planner_busy);
-        busy.turn = Some(self.permits.acquire().await.ok()?);
-        Some(busy)
     }
 }
 
