@@ -2,10 +2,10 @@
 //! answers, map updates beside the empty call (the transport's limit).
 
 use std::sync::Arc;
-use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
+use hdrhistogram::Histogram;
 use tokio::task::JoinSet;
 use tonic::transport::Channel;
 
@@ -36,30 +36,38 @@ pub(super) async fn measure(
     let shared = exploration_proto::client::endpoint(url, config.tls.as_ref())
         .map_err(|e| SimError::Executive(e.to_string()))?
         .connect_lazy();
-    let empty_one_connection = closed_loop(config.capacity, callers, None, move |_| empty_call(shared.clone())).await.0;
+    let empty_one_connection =
+        closed_loop(config.capacity, callers, false, move |_| empty_call(shared.clone())).await.0;
     let mine = Arc::clone(&shares);
-    let empty = closed_loop(config.capacity, shares.len(), None, move |c| {
+    let empty = closed_loop(config.capacity, shares.len(), false, move |c| {
         let (robot, _) = &mine[c.caller][c.round % mine[c.caller].len()];
         empty_call(robot.connection.clone())
     })
     .await
     .0;
-    let (range, encoding, world, mine) =
-        (config.sensor_range_m, config.cell_encoding, Arc::clone(world), Arc::clone(&shares));
-    let (updates, latency) = closed_loop(config.capacity, shares.len(), Some(new_histogram()), move |c| {
-        let (robot, at) = &mine[c.caller][c.round % mine[c.caller].len()];
+    // The robots stand still in this phase, so each one's footprint is the
+    // same at every call: built once, the generator (which shares the
+    // machine with the executive) spends its CPU on the calls.
+    let (range, encoding) = (config.sensor_range_m, config.cell_encoding);
+    let footprints: Arc<Vec<Vec<pb::MapPatch>>> = Arc::new(
+        shares.iter().map(|mine| mine.iter().map(|(_, at)| footprint(world, *at, range, encoding)).collect()).collect(),
+    );
+    let mine = Arc::clone(&shares);
+    let (updates, latency) = closed_loop(config.capacity, shares.len(), true, move |c| {
+        let k = c.round % mine[c.caller].len();
+        let (robot, at) = &mine[c.caller][k];
         let request = pb::UpdateMapRequest {
             robot_id: robot.id,
             seq: robot.next_seq.fetch_add(1, Ordering::AcqRel),
             pose: Some(pose_at(*at, 0.0)),
-            patches: vec![footprint(&world, *at, range, encoding)],
+            patches: vec![footprints[c.caller][k].clone()],
             ..Default::default()
         };
         let mut client = robot.client.clone();
         async move { client.update_map(request).await.is_ok() }
     })
     .await;
-    let latency = Latency::of(&latency.unwrap_or_else(new_histogram));
+    let latency = Latency::of(&latency);
     Ok(CapacityReport {
         callers,
         empty_calls_per_s: empty,
@@ -85,46 +93,45 @@ struct Turn {
 
 /// `callers` callers each making the call `call` returns, one after the
 /// other, for `length`: calls answered OK per second, and their latency
-/// when `latency` is given. The empty calls are not timed: a lock per call
-/// around one histogram would slow the very reference they are.
-async fn closed_loop<F, Fut>(
-    length: Duration,
-    callers: usize,
-    latency: Option<hdrhistogram::Histogram<u64>>,
-    call: F,
-) -> (f64, Option<hdrhistogram::Histogram<u64>>)
+/// when `timed` (each caller keeps its own histogram, merged at the end, so
+/// that no lock is taken per call).
+async fn closed_loop<F, Fut>(length: Duration, callers: usize, timed: bool, call: F) -> (f64, Histogram<u64>)
 where
     F: Fn(Turn) -> Fut + Send + Sync + 'static,
     Fut: std::future::Future<Output = bool> + Send + 'static,
 {
     let go = Arc::new(AtomicBool::new(true));
     let count = Arc::new(AtomicU64::new(0));
-    let timed = latency.is_some();
-    let latency = Arc::new(Mutex::new(latency.unwrap_or_else(new_histogram)));
     let call = Arc::new(call);
     let mut workers = JoinSet::new();
     for caller in 0..callers {
-        let (go, count, latency, call) = (Arc::clone(&go), Arc::clone(&count), Arc::clone(&latency), Arc::clone(&call));
+        let (go, count, call) = (Arc::clone(&go), Arc::clone(&count), Arc::clone(&call));
         workers.spawn(async move {
+            let mut latency = new_histogram();
             let mut round = 0;
             while go.load(Ordering::Acquire) {
                 let sent = Instant::now();
                 if call(Turn { caller, round }).await {
                     count.fetch_add(1, Ordering::AcqRel);
                     if timed {
-                        let micros = sent.elapsed().as_micros().max(1) as u64;
-                        latency.lock().unwrap_or_else(|e| e.into_inner()).saturating_record(micros);
+                        latency.saturating_record(sent.elapsed().as_micros().max(1) as u64);
                     }
                 }
                 round += 1;
             }
+            latency
         });
     }
     let started = Instant::now();
     tokio::time::sleep(length).await;
     go.store(false, Ordering::Release);
     let rate = count.load(Ordering::Acquire) as f64 / started.elapsed().as_secs_f64();
-    while workers.join_next().await.is_some() {}
-    let histogram = timed.then(|| latency.lock().unwrap_or_else(|e| e.into_inner()).clone());
-    (rate, histogram)
+    let mut latency = new_histogram();
+    while let Some(caller) = workers.join_next().await {
+        // Same bounds on both sides: adding cannot fail.
+        if let Ok(theirs) = caller {
+            let _ = latency.add(&theirs);
+        }
+    }
+    (rate, latency)
 }
