@@ -2,6 +2,7 @@
 //! answers, map updates beside the empty call (the transport's limit).
 
 use std::sync::Arc;
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
@@ -93,8 +94,9 @@ struct Turn {
 
 /// `callers` callers each making the call `call` returns, one after the
 /// other, for `length`: calls answered OK per second, and their latency
-/// when `timed` (each caller keeps its own histogram, merged at the end, so
-/// that no lock is taken per call).
+/// when `timed`. One histogram behind a lock: one per caller would be
+/// 188 kB each (1 µs to 1 h at three digits), 188 MB for a thousand
+/// callers, to save a lock of about 50 ns per call.
 async fn closed_loop<F, Fut>(length: Duration, callers: usize, timed: bool, call: F) -> (f64, Histogram<u64>)
 where
     F: Fn(Turn) -> Fut + Send + Sync + 'static,
@@ -102,36 +104,31 @@ where
 {
     let go = Arc::new(AtomicBool::new(true));
     let count = Arc::new(AtomicU64::new(0));
+    let latency = Arc::new(Mutex::new(new_histogram()));
     let call = Arc::new(call);
     let mut workers = JoinSet::new();
     for caller in 0..callers {
-        let (go, count, call) = (Arc::clone(&go), Arc::clone(&count), Arc::clone(&call));
+        let (go, count, latency, call) = (Arc::clone(&go), Arc::clone(&count), Arc::clone(&latency), Arc::clone(&call));
         workers.spawn(async move {
-            let mut latency = new_histogram();
             let mut round = 0;
             while go.load(Ordering::Acquire) {
                 let sent = Instant::now();
                 if call(Turn { caller, round }).await {
                     count.fetch_add(1, Ordering::AcqRel);
                     if timed {
-                        latency.saturating_record(sent.elapsed().as_micros().max(1) as u64);
+                        let micros = sent.elapsed().as_micros().max(1) as u64;
+                        latency.lock().unwrap_or_else(|e| e.into_inner()).saturating_record(micros);
                     }
                 }
                 round += 1;
             }
-            latency
         });
     }
     let started = Instant::now();
     tokio::time::sleep(length).await;
     go.store(false, Ordering::Release);
     let rate = count.load(Ordering::Acquire) as f64 / started.elapsed().as_secs_f64();
-    let mut latency = new_histogram();
-    while let Some(caller) = workers.join_next().await {
-        // Same bounds on both sides: adding cannot fail.
-        if let Ok(theirs) = caller {
-            let _ = latency.add(&theirs);
-        }
-    }
-    (rate, latency)
+    while workers.join_next().await.is_some() {}
+    let histogram = latency.lock().unwrap_or_else(|e| e.into_inner()).clone();
+    (rate, histogram)
 }
