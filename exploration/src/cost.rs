@@ -22,7 +22,7 @@ use crate::grid::{Cell, CellClass, GridFrame, NEIGHBOURS_8, OccupancyGrid, UNKNO
 mod growing;
 mod search;
 pub use growing::{GoalDistance, GrowingCostMap};
-use search::{Moves, key, settle, unkey};
+use search::{Buckets, Moves, key, settle, unkey};
 
 /// What entering each cell costs, per metre; `f32::INFINITY` where impassable.
 ///
@@ -274,10 +274,14 @@ pub struct CostMap {
     /// Sources outside the window, with their index among the sources: a
     /// robot where nothing passable is near reaches only its own cell.
     stranded: Vec<(Cell, u32)>,
+    /// Labels below this are final and answered; the others are not (a
+    /// search stopped early, [`cost_map_reaching`]). Infinite when complete.
+    settled_below: f32,
 }
 
 impl CostMap {
-    /// The cost of reaching an on-grid cell, or `None` if it cannot be reached.
+    /// The cost of reaching an on-grid cell, or `None` if it cannot be
+    /// reached (or, for a map of [`cost_map_reaching`], was not settled).
     #[inline]
     pub fn cost(&self, cell: Cell) -> Option<f64> {
         if !self.frame.contains(cell) {
@@ -291,7 +295,7 @@ impl CostMap {
     #[inline]
     fn raw(&self, cell: Cell) -> f32 {
         match self.window.index(cell).map(|i| self.cost[i]) {
-            Some(c) if c.is_finite() => c,
+            Some(c) if c < self.settled_below => c,
             _ if self.stranded.iter().any(|(s, _)| *s == cell) => 0.0,
             _ => f32::INFINITY,
         }
@@ -302,9 +306,10 @@ impl CostMap {
         &self.frame
     }
 
-    /// Number of reachable cells.
+    /// Number of reachable cells (of those settled, for a map of
+    /// [`cost_map_reaching`]).
     pub fn reachable_cells(&self) -> usize {
-        self.cost.iter().filter(|c| c.is_finite()).count() + self.stranded.len()
+        self.cost.iter().filter(|&&c| c < self.settled_below).count() + self.stranded.len()
     }
 
     /// The cheapest path from a source to `goal` (source first, goal last),
@@ -429,7 +434,46 @@ fn settle_from(traversal: &TraversalMap, sources: &[Cell], corners: Corners, lab
         (false, true) => settle::<_, true>(&traversal.weighted(), &mut cost, labels, &starts, bounds),
         (false, false) => settle::<_, false>(&traversal.weighted(), &mut cost, labels, &starts, bounds),
     }
-    CostMap { frame: traversal.frame, window: traversal.window, cost, stranded }
+    CostMap { frame: traversal.frame, window: traversal.window, cost, stranded, settled_below: f32::INFINITY }
+}
+
+/// A cost map from `sources` over `traversal`, as [`cost_map`]'s, but
+/// settled only until each of `cells` is (or everything reachable is). It
+/// answers for the cells cheaper than a radius at least the dearest of
+/// `cells` it reaches, so also for every cell of the cheapest paths to
+/// them ([`CostMap::path_to`]), and for no others.
+///
+/// A frontier cluster's wavefront is read at the robots' cells only (Bautin
+/// et al. 2011's MinPos): late in a mission the robots gather near the last
+/// frontiers, and the part of the map behind the farthest robot, most of
+/// it by then, need not be searched.
+pub fn cost_map_reaching(traversal: &TraversalMap, sources: &[Cell], cells: &[Cell]) -> CostMap {
+    let mut cost = vec![f32::INFINITY; traversal.padded.len()];
+    let (starts, stranded) = traversal.seed(sources, &mut cost, &mut []);
+    // A cell no step enters gets a label only as a source.
+    let mut waiting: Vec<usize> = cells
+        .iter()
+        .filter_map(|&c| traversal.start_index(c))
+        .filter(|&i| traversal.padded[i].is_finite() || cost[i] == 0.0)
+        .collect();
+    let mut settled_below = f32::INFINITY;
+    let bounds = traversal.step_bounds();
+    match Buckets::fitting(&starts, bounds) {
+        Some(mut buckets) => {
+            let done = |cost: &[f32], radius: f32| {
+                waiting.retain(|&i| cost[i] >= radius);
+                waiting.is_empty()
+            };
+            if traversal.is_uniform() {
+                buckets.drain_until::<_, false, false>(&traversal.uniform(), &mut cost, &mut [], done);
+            } else {
+                buckets.drain_until::<_, false, false>(&traversal.weighted(), &mut cost, &mut [], done);
+            }
+            settled_below = buckets.radius();
+        }
+        None => settle::<_, false>(&traversal.weighted(), &mut cost, &mut [], &starts, bounds),
+    }
+    CostMap { frame: traversal.frame, window: traversal.window, cost, stranded, settled_below }
 }
 
 impl TraversalMap {
@@ -863,6 +907,64 @@ mod tests {
                 proptest::prop_assert_eq!(labelled.source_of(goal), map.cost(goal).map(|_| 1), "{:?}", goal);
             }
         }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(crate::testing::seeded_proptest(256))]
+        /// A map settled only until given cells are answers for them as the
+        /// complete map does, and for the cells of the paths down from them;
+        /// whatever else it answers, it answers right.
+        #[test]
+        fn a_map_settled_until_some_cells_answers_them_as_the_complete_one(
+            width in 1u32..24,
+            height in 1u32..24,
+            seed in 0u64..1_000_000,
+            blocked_per_mille in 0u64..400,
+            weighted in proptest::bool::ANY,
+            sources in 1usize..4,
+            wanted in 0usize..6,
+        ) {
+            let frame = GridFrame::new(0.25, crate::math::Point2::origin(), width, height);
+            let mut rng = crate::rng::SplitMix64::new(seed);
+            let costs: Vec<f32> = (0..frame.len())
+                .map(|_| match (rng.below(1000) < blocked_per_mille, weighted) {
+                    (true, _) => f32::INFINITY,
+                    (false, true) => 0.1 + 0.9 * rng.next_f64() as f32,
+                    (false, false) => 1.0,
+                })
+                .collect();
+            let t = TraversalMap::from_costs(frame, costs);
+            let mut cell = || Cell::new(rng.below(u64::from(width)) as i32, rng.below(u64::from(height)) as i32);
+            let sources: Vec<Cell> = (0..sources).map(|_| cell()).collect();
+            let wanted: Vec<Cell> = (0..wanted).map(|_| cell()).collect();
+            let complete = cost_map(&t, &sources);
+            let partial = cost_map_reaching(&t, &sources, &wanted);
+            for &c in &wanted {
+                proptest::prop_assert_eq!(partial.cost(c), complete.cost(c), "{:?}", c);
+                proptest::prop_assert_eq!(partial.path_to(&t, c), complete.path_to(&t, c), "{:?}", c);
+            }
+            for c in frame.bounds().cells() {
+                if let Some(answer) = partial.cost(c) {
+                    proptest::prop_assert_eq!(Some(answer), complete.cost(c), "{:?}", c);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_map_settled_until_some_cells_stops_past_them() {
+        // A corridor of 40 cells: from its west end, the cell 10 along.
+        let grid = grid_from_picture(&["........................................"]);
+        let t = TraversalMap::free_space(&grid, 0.0);
+        let map = cost_map_reaching(&t, &[Cell::new(0, 0)], &[Cell::new(10, 0)]);
+        assert_eq!(map.cost(Cell::new(10, 0)), cost_map(&t, &[Cell::new(0, 0)]).cost(Cell::new(10, 0)));
+        assert_eq!(map.cost(Cell::new(39, 0)), None, "the far end is not searched");
+        assert!(map.reachable_cells() < 20, "{} cells answered", map.reachable_cells());
+        // A wanted cell it cannot reach leaves the search complete.
+        let cut = grid_from_picture(&["..........#....................."]);
+        let t = TraversalMap::free_space(&cut, 0.0);
+        let map = cost_map_reaching(&t, &[Cell::new(0, 0)], &[Cell::new(1, 0), Cell::new(20, 0)]);
+        assert_eq!(map, cost_map(&t, &[Cell::new(0, 0)]));
     }
 
     #[test]

@@ -342,6 +342,18 @@ impl Buckets {
         cost: &mut [f32],
         labels: &mut [u32],
     ) {
+        self.drain_until::<N, CUT, LABELLED>(n, cost, labels, |_, _| false);
+    }
+
+    /// Settles buckets until `done(cost, radius)` holds after one, with
+    /// [`Self::radius`] as it then stands, or until every bucket is.
+    pub(super) fn drain_until<N: Neighbourhood, const CUT: bool, const LABELLED: bool>(
+        &mut self,
+        n: &N,
+        cost: &mut [f32],
+        labels: &mut [u32],
+        mut done: impl FnMut(&[f32], f32) -> bool,
+    ) {
         let Self { rings, slot_mask, per_bucket, current, pending, batch } = self;
         let (slot_mask, per_bucket) = (*slot_mask, *per_bucket);
         while *pending > 0 {
@@ -370,6 +382,10 @@ impl Buckets {
                 batch.clear();
             }
             *current += 1;
+            // The radius as `Self::radius` reads it, checked once per bucket.
+            if *pending > 0 && done(cost, (*current - 1) as f32 / per_bucket) {
+                break;
+            }
         }
     }
 }

@@ -36,7 +36,7 @@ impl Policy for Greedy {
     }
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
-        let matrix = cluster_cost_matrix(input, costs, self.switch_margin);
+        let matrix = cluster_cost_matrix(input, costs, self.switch_margin, &[]);
         let m = input.clusters.len();
         let mut targets: Vec<Option<Target>> = vec![None; input.robots.len()];
         let mut free_frontier = vec![true; m];

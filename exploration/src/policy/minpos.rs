@@ -45,7 +45,7 @@ impl Policy for MinPos {
     }
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
-        let matrix = cluster_cost_matrix(input, costs, self.switch_margin);
+        let matrix = cluster_cost_matrix(input, costs, self.switch_margin, &[]);
         let n = matrix.len();
         let targets = (0..n)
             .map(|i| {

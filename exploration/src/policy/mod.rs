@@ -252,7 +252,8 @@ impl std::ops::Deref for ClusterCosts {
 
 impl ClusterCosts {
     /// The clusters' wavefronts, one per cluster in cluster order, when the
-    /// costs were read from them.
+    /// costs were read from them. They answer for the robots' cells, the
+    /// cells asked for when the matrix was made, and the paths to them.
     pub fn cluster_maps(&self) -> Option<&[std::sync::Arc<crate::cost::CostMap>]> {
         self.descent.as_ref().map(|(_, maps, _)| maps.as_slice())
     }
@@ -308,7 +309,16 @@ pub fn cluster_costs(
 /// this reason); robots standing where the cluster's wavefront cannot enter
 /// (inside an inflated obstacle), or teams of mixed footprints, use their
 /// own wavefronts.
-pub fn cluster_cost_matrix(input: &PlanningInput<'_>, costs: &mut CostCache<'_>, margin: f64) -> ClusterCosts {
+///
+/// A cluster's wavefront goes only as far as the robots' cells and
+/// `also_reach` (cells a policy reads in [`ClusterCosts::cluster_maps`]
+/// besides the robots').
+pub fn cluster_cost_matrix(
+    input: &PlanningInput<'_>,
+    costs: &mut CostCache<'_>,
+    margin: f64,
+    also_reach: &[Cell],
+) -> ClusterCosts {
     let kinds: Vec<crate::cost::TraversalKind> = input.robots.iter().map(RobotView::free_space).collect();
     let one_kind = kinds.windows(2).all(|w| w[0] == w[1]);
     if kinds.is_empty() || !one_kind || input.clusters.len() >= input.robots.len() {
@@ -320,8 +330,9 @@ pub fn cluster_cost_matrix(input: &PlanningInput<'_>, costs: &mut CostCache<'_>,
         return ClusterCosts { rows, descent: None };
     }
     let traversal = costs.traversal(kinds[0]);
+    let reach: Vec<Cell> = input.robots.iter().map(|r| r.cell).chain(also_reach.iter().copied()).collect();
     let maps = crate::cost::in_parallel(input.clusters, input.threads, |cluster| {
-        std::sync::Arc::new(crate::cost::cost_map(&traversal, &cluster.cells))
+        std::sync::Arc::new(crate::cost::cost_map_reaching(&traversal, &cluster.cells, &reach))
     });
     let rows = input
         .robots

@@ -100,7 +100,9 @@ impl Policy for Tours {
     }
 
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
-        let matrix = cluster_cost_matrix(input, costs, self.switch_margin);
+        // The legs between a tour's stops read the clusters' wavefronts at
+        // other clusters' cells.
+        let matrix = cluster_cost_matrix(input, costs, self.switch_margin, &input.frontier_cells());
         let tours = self.tours(&matrix, input.clusters);
         let legs = legs_between_stops(input, costs, &matrix, &tours);
         let mut chosen: Vec<Option<usize>> = tours
