@@ -460,8 +460,13 @@ pub fn cost_map_reaching(traversal: &TraversalMap, sources: &[Cell], cells: &[Ce
     let bounds = traversal.step_bounds();
     match Buckets::fitting(&starts, bounds) {
         Some(mut buckets) => {
+            // A settled label stays settled: popping from the end while the
+            // last is settled costs O(1) a bucket, not a scan of thousands
+            // of frontier cells (`tours`) every bucket.
             let done = |cost: &[f32], radius: f32| {
-                waiting.retain(|&i| cost[i] >= radius);
+                while waiting.last().is_some_and(|&i| cost[i] < radius) {
+                    waiting.pop();
+                }
                 waiting.is_empty()
             };
             if traversal.is_uniform() {
