@@ -85,6 +85,8 @@ impl Window {
 }
 
 impl TraversalMap {
+    /// Over the window around the cells of `cost_per_metre` (one per grid
+    /// cell) that are finite.
     fn from_unpadded(frame: GridFrame, cost_per_metre: &[f32]) -> Self {
         let window = Window::around(&frame, |i| cost_per_metre[i].is_finite());
         let mut padded = vec![f32::INFINITY; window.len()];
@@ -107,9 +109,7 @@ impl TraversalMap {
         let (moves, entries) = Moves::of(&passable_bits, window);
         Self { frame, window, padded, passable_bits, moves, entries, step_range }
     }
-}
 
-impl TraversalMap {
     /// Known free cells cost 1 per metre; everything else is impassable, and
     /// so is every cell within `footprint_radius_m` of an occupied cell (the
     /// configuration space of a circular robot, Bautin et al. 2011 §IV-B).
