@@ -31,6 +31,10 @@ impl GoalDistance {
         let (starts, _) = traversal.seed(goals, &mut cost, &mut []);
         let inbound = traversal.inbound();
         match Buckets::fitting(&starts, traversal.step_bounds()) {
+            // Where every step costs the same, the per-cell costs need not be read.
+            Some(mut b) if traversal.is_uniform() => {
+                b.drain::<_, false, false>(&traversal.uniform_inbound(), &mut cost, &mut [])
+            }
             Some(mut b) => b.drain::<_, false, false>(&inbound, &mut cost, &mut []),
             None => heap::<_, false>(&inbound, &mut cost, &mut [], &starts),
         }

@@ -94,6 +94,14 @@ impl TraversalMap {
         Inbound(self.weighted())
     }
 
+    /// [`Self::inbound`] where every passable cell costs the same per metre
+    /// (only meaningful when [`Self::is_uniform`]): the same steps at the
+    /// same costs, without reading a per-cell cost.
+    pub(super) fn uniform_inbound(&self) -> UniformInbound<'_> {
+        let Uniform { bits, stride, orthogonal, diagonal, .. } = self.uniform();
+        UniformInbound { bits, entries: &self.entries, stride, orthogonal, diagonal }
+    }
+
     pub(super) fn weighted(&self) -> Weighted<'_> {
         let (orthogonal, diagonal) = self.step_lengths();
         Weighted {
@@ -253,6 +261,44 @@ impl Neighbourhood for Inbound<'_> {
             if CUT || (bit(bits, a) && bit(bits, b)) {
                 improve(j, slanted);
             }
+        }
+    }
+}
+
+/// [`Inbound`] over a uniform traversal: entering any passable cell costs
+/// the same, so a complete search from goals (one per open segment for
+/// `segmentation`, over the whole known window) reads only the entries mask.
+pub(super) struct UniformInbound<'a> {
+    bits: &'a [u64],
+    entries: &'a [u8],
+    stride: usize,
+    orthogonal: f32,
+    diagonal: f32,
+}
+
+impl Neighbourhood for UniformInbound<'_> {
+    #[inline(always)]
+    fn neighbours<const CUT: bool>(&self, i: usize, here: f32, mut improve: impl FnMut(usize, f32)) {
+        let Self { bits, entries, stride: s, orthogonal, diagonal } = *self;
+        // Nothing enters an impassable cell, and a passable one is off the
+        // window's border, so its neighbours are in bounds.
+        if !CUT {
+            let entries = entries[i];
+            if entries == 0 {
+                return;
+            }
+            let (straight, slanted) = (here + orthogonal, here + diagonal);
+            Moves::each(entries, i, s, |j, diagonal| improve(j, if diagonal { slanted } else { straight }));
+            return;
+        }
+        if !bit(bits, i) {
+            return;
+        }
+        for j in [i + 1, i - 1, i + s, i - s] {
+            improve(j, here + orthogonal);
+        }
+        for j in [i + s + 1, i + s - 1, i - s + 1, i - s - 1] {
+            improve(j, here + diagonal);
         }
     }
 }
