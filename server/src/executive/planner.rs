@@ -7,7 +7,8 @@
 //! the next one), takes a snapshot under the mission's lock, makes the plan
 //! off the lock on the planning threads (missions in parallel, up to the
 //! background budget: one core fewer than all by default, so that requests
-//! keep a core while every mission plans), and commits it only while it
+//! keep a core while every mission plans; plans a robot waits for take
+//! the turns first, see `turns`), and commits it only while it
 //! still fits the mission: if something that demands a new plan happened meanwhile (a task
 //! ended, a robot joined or left, the policy changed), it plans again. A
 //! plan is committed as a map update is: queued and applied under the
@@ -19,10 +20,10 @@
 //! the same order give the same plans.
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 
 use prometheus_client::metrics::gauge::Gauge;
-use tokio::sync::{Mutex, MutexGuard, Notify, Semaphore, SemaphorePermit};
+use tokio::sync::{Mutex, MutexGuard, Notify};
 use tokio::task::JoinSet;
 use tokio_util::sync::CancellationToken;
 
@@ -32,6 +33,10 @@ use crate::clock::Clock;
 use crate::domain::Timestamp;
 use crate::error::Error;
 use crate::metrics::Metrics;
+
+mod turns;
+
+use turns::{Turn, Turns};
 
 /// How many times a plan that no longer fits is made again before the
 /// planner waits for the next trigger (a mission whose team changes faster
@@ -46,6 +51,10 @@ pub(crate) struct MissionCell {
     wake: Notify,
     /// Requests waiting for the lock, to bound the work queued per mission.
     queued: AtomicUsize,
+    /// Whether a robot waits for the next plan (a demand: a task ended, a
+    /// robot joined, ...), as of the last change: such plans take the
+    /// planning turns first.
+    demanded: Arc<AtomicBool>,
     /// Its grid's cells, counted against the executive's limit.
     cells: u64,
     /// Cancelled when this executive no longer acts for the mission
@@ -60,6 +69,7 @@ impl MissionCell {
             state: Mutex::new(mission),
             wake: Notify::new(),
             queued: AtomicUsize::new(0),
+            demanded: Arc::new(AtomicBool::new(false)),
             cells,
             retired: tokio_util::sync::CancellationToken::new(),
         }
@@ -155,8 +165,9 @@ pub(crate) struct Planner {
     /// Plans made off the request path at once, and the threads one of
     /// them may use when it is the only one.
     background: usize,
-    /// One permit per plan made off the request path at once.
-    permits: Semaphore,
+    /// One turn per plan made off the request path at once, demanded
+    /// plans first.
+    turns: Turns,
     /// Plans being made now.
     running: AtomicUsize,
     task_ids: Arc<AtomicU64>,
@@ -184,7 +195,7 @@ impl Planner {
             clock,
             threads: threads.max(1),
             background,
-            permits: Semaphore::new(background),
+            turns: Turns::new(background),
             running: AtomicUsize::new(0),
             task_ids,
             metrics,
@@ -227,6 +238,7 @@ impl Planner {
     /// After a change was applied to `mission`: plans now when it is in
     /// lockstep, otherwise wakes its planner if a plan is due.
     pub(crate) async fn after_change(&self, cell: &MissionCell, mission: &mut Mission) {
+        cell.demanded.store(mission.plan_demanded(), Ordering::Release);
         if mission.record().spec.lockstep {
             self.plan_inline(mission).await;
         } else if mission.replan_failed() || mission.replan_reason_off_path(self.clock.now(), self.min_gap).is_some() {
@@ -285,9 +297,9 @@ impl Planner {
 
     /// A planning turn, counted in `planner_busy` while it is waited for and
     /// while it is held.
-    async fn take_turn(&self) -> Option<Busy<'_>> {
+    async fn take_turn(&self, cell: &MissionCell) -> Option<Busy<'_>> {
         let mut busy = Busy::new(&self.metrics.planner_busy);
-        busy.turn = Some(self.permits.acquire().await.ok()?);
+        busy.turn = Some(self.turns.take(Arc::clone(&cell.demanded)).await?);
         Some(busy)
     }
 
@@ -298,7 +310,7 @@ impl Planner {
             // behind other missions' plans, and a snapshot taken before
             // the wait missed what arrived during it, such as the robot
             // whose arrival woke the planner, which then waited a second turn.
-            let Some(turn) = self.take_turn().await else { return };
+            let Some(turn) = self.take_turn(cell).await else { return };
             let (job, basis, reason, now, policy) = {
                 let mission = cell.lock().await;
                 let now = self.clock.now();
@@ -330,7 +342,11 @@ impl Planner {
                     continue;
                 }
                 let plan = MadePlan { outcome: &outcome, reason: &reason, now, basis: &basis };
-                match self.queue_plan(&mut mission, &plan).await {
+                let queued = self.queue_plan(&mut mission, &plan).await;
+                // The demands it served are reset; those it left (a robot
+                // whose target was explored meanwhile) are not.
+                cell.demanded.store(mission.plan_demanded(), Ordering::Release);
+                match queued {
                     Ok(queued) => queued,
                     Err(e) => {
                         tracing::error!(mission = mission.record().id, error = %e, "replanning failed; it stays due");
@@ -357,7 +373,7 @@ impl Planner {
 /// until it gives the turn back.
 struct Busy<'a> {
     gauge: &'a Gauge,
-    turn: Option<SemaphorePermit<'a>>,
+    turn: Option<Turn>,
 }
 
 impl<'a> Busy<'a> {
@@ -448,7 +464,7 @@ mod tests {
         let planner = Planner::new(writer, Clock::default(), 1, 1, ids, Arc::clone(&metrics), Default::default());
         let cell = Arc::new(MissionCell::new(mission));
         // Another mission's plan holds the only turn.
-        let turn = planner.permits.try_acquire().unwrap();
+        let turn = planner.turns.try_take().unwrap();
         planner.start(Arc::clone(&cell));
         cell.wake.notify_one();
         for _ in 0..10 {

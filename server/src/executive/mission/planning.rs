@@ -617,6 +617,12 @@ impl Mission {
         self.demands
     }
 
+    /// Whether a replanning is demanded (a task ended, a robot joined,
+    /// ...): someone waits for it, unlike for map news alone.
+    pub(crate) fn plan_demanded(&self) -> bool {
+        self.pending_replan.is_some()
+    }
+
     /// Asks for a replanning at the next opportunity.
     pub(super) fn demand_replan(&mut self, reason: String) {
         self.pending_replan = Some(reason);
