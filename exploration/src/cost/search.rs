@@ -97,9 +97,8 @@ impl TraversalMap {
     /// [`Self::inbound`] where every passable cell costs the same per metre
     /// (only meaningful when [`Self::is_uniform`]): the same steps at the
     /// same costs, without reading a per-cell cost.
-    pub(super) fn uniform_inbound(&self) -> UniformInbound<'_> {
-        let Uniform { bits, stride, orthogonal, diagonal, .. } = self.uniform();
-        UniformInbound { bits, entries: &self.entries, stride, orthogonal, diagonal }
+    pub(super) fn uniform_inbound(&self) -> Uniform<'_, true> {
+        self.uniform_over(&self.entries)
     }
 
     pub(super) fn weighted(&self) -> Weighted<'_> {
@@ -117,11 +116,15 @@ impl TraversalMap {
 
     /// Only meaningful when [`Self::is_uniform`].
     pub(super) fn uniform(&self) -> Uniform<'_> {
+        self.uniform_over(&self.moves)
+    }
+
+    fn uniform_over<'a, const REVERSED: bool>(&'a self, steps: &'a [u8]) -> Uniform<'a, REVERSED> {
         let (orthogonal, diagonal) = self.step_lengths();
         let per_metre = self.step_range.0;
         Uniform {
             bits: &self.passable_bits,
-            moves: &self.moves,
+            steps,
             stride: self.window.stride,
             orthogonal: orthogonal * per_metre,
             diagonal: diagonal * per_metre,
@@ -188,27 +191,45 @@ impl Neighbourhood for Weighted<'_> {
 
 /// The same cost per metre everywhere passable: only the step masks (or,
 /// for searches that cut corners, the passability bits) are read, no
-/// per-cell cost.
-pub(super) struct Uniform<'a> {
+/// per-cell cost. `REVERSED`: the steps of [`Inbound`] over such a
+/// traversal, from goals (a complete search from each open segment for
+/// `segmentation`, over the whole known window).
+pub(super) struct Uniform<'a, const REVERSED: bool = false> {
     bits: &'a [u64],
-    moves: &'a [u8],
+    /// Per cell, the steps out of it that cut no corner, or, reversed, the
+    /// steps into it.
+    steps: &'a [u8],
     stride: usize,
     orthogonal: f32,
     diagonal: f32,
 }
 
-impl Neighbourhood for Uniform<'_> {
+impl<const REVERSED: bool> Neighbourhood for Uniform<'_, REVERSED> {
     #[inline(always)]
     fn neighbours<const CUT: bool>(&self, i: usize, here: f32, mut improve: impl FnMut(usize, f32)) {
         let straight = here + self.orthogonal;
         let slanted = here + self.diagonal;
         if !CUT {
-            Moves::each(self.moves[i], i, self.stride, |j, diagonal| {
+            Moves::each(self.steps[i], i, self.stride, |j, diagonal| {
                 improve(j, if diagonal { slanted } else { straight });
             });
             return;
         }
         let s = self.stride;
+        if REVERSED {
+            // Nothing enters an impassable cell; a passable one is off the
+            // window's border, so its neighbours are in bounds.
+            if !bit(self.bits, i) {
+                return;
+            }
+            for j in [i + 1, i - 1, i + s, i - s] {
+                improve(j, straight);
+            }
+            for j in [i + s + 1, i + s - 1, i - s + 1, i - s - 1] {
+                improve(j, slanted);
+            }
+            return;
+        }
         for j in [i + 1, i - 1, i + s, i - s] {
             if bit(self.bits, j) {
                 improve(j, straight);
@@ -261,44 +282,6 @@ impl Neighbourhood for Inbound<'_> {
             if CUT || (bit(bits, a) && bit(bits, b)) {
                 improve(j, slanted);
             }
-        }
-    }
-}
-
-/// [`Inbound`] over a uniform traversal: entering any passable cell costs
-/// the same, so a complete search from goals (one per open segment for
-/// `segmentation`, over the whole known window) reads only the entries mask.
-pub(super) struct UniformInbound<'a> {
-    bits: &'a [u64],
-    entries: &'a [u8],
-    stride: usize,
-    orthogonal: f32,
-    diagonal: f32,
-}
-
-impl Neighbourhood for UniformInbound<'_> {
-    #[inline(always)]
-    fn neighbours<const CUT: bool>(&self, i: usize, here: f32, mut improve: impl FnMut(usize, f32)) {
-        let Self { bits, entries, stride: s, orthogonal, diagonal } = *self;
-        // Nothing enters an impassable cell, and a passable one is off the
-        // window's border, so its neighbours are in bounds.
-        if !CUT {
-            let entries = entries[i];
-            if entries == 0 {
-                return;
-            }
-            let (straight, slanted) = (here + orthogonal, here + diagonal);
-            Moves::each(entries, i, s, |j, diagonal| improve(j, if diagonal { slanted } else { straight }));
-            return;
-        }
-        if !bit(bits, i) {
-            return;
-        }
-        for j in [i + 1, i - 1, i + s, i - s] {
-            improve(j, here + orthogonal);
-        }
-        for j in [i + s + 1, i + s - 1, i - s + 1, i - s - 1] {
-            improve(j, here + diagonal);
         }
     }
 }
