@@ -192,10 +192,10 @@ impl Planner {
         Arc::new(Self {
             threads_pool: PlanThreads::start(threads.max(1)),
             writer,
+            turns: Turns::new(background, clock.clone()),
             clock,
             threads: threads.max(1),
             background,
-            turns: Turns::new(background),
             running: AtomicUsize::new(0),
             task_ids,
             metrics,

@@ -9,13 +9,22 @@
 //! arrivals), and with one turn at a time an arrival queued behind up to one
 //! plan of every other mission: 50 ms each, twenty missions, a second. A
 //! mission with map news only keeps its robots on their tasks while it
-//! waits.
+//! waits, but not without end: a plan for map news that has waited
+//! [`LONGEST_WAIT`] goes next whatever is demanded, so that a stream of
+//! demands elsewhere cannot hold its mission's map news back for ever.
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
 use tokio::sync::oneshot;
+use tokio::time::{Duration, Instant};
+
+use crate::clock::Clock;
+
+/// How long a plan for map news waits behind demanded ones at most, before
+/// it goes first (on top of the plans being made when it would go).
+pub(crate) const LONGEST_WAIT: Duration = Duration::from_secs(2);
 
 /// A fixed number of turns, handed to the waiting plans demands first.
 #[derive(Debug, Clone)]
@@ -27,6 +36,8 @@ pub(crate) struct Turns {
 struct Waiting {
     free: usize,
     queue: VecDeque<Waiter>,
+    /// What waits are measured on.
+    clock: Clock,
 }
 
 #[derive(Debug)]
@@ -34,6 +45,7 @@ struct Waiter {
     /// Whether a robot waits for this plan, read when a turn is handed on:
     /// a demand that arrives while the plan waits counts.
     demanded: Arc<AtomicBool>,
+    since: Instant,
     handed: oneshot::Sender<Turn>,
 }
 
@@ -45,14 +57,15 @@ pub(crate) struct Turn {
 }
 
 impl Turns {
-    pub(crate) fn new(turns: usize) -> Self {
-        Self { inner: Arc::new(Mutex::new(Waiting { free: turns, queue: VecDeque::new() })) }
+    pub(crate) fn new(turns: usize, clock: Clock) -> Self {
+        Self { inner: Arc::new(Mutex::new(Waiting { free: turns, queue: VecDeque::new(), clock })) }
     }
 
     /// A turn, at once if one is free, else when the plans before this one
-    /// have had theirs: every plan that is `demanded` when a turn comes
-    /// free, then the others in the order they came. `None` only if the
-    /// turns are gone, which a handle to them rules out.
+    /// have had theirs: a plan that has waited [`LONGEST_WAIT`], then every
+    /// plan that is `demanded` when a turn comes free, then the others in
+    /// the order they came. `None` only if the turns are gone, which a
+    /// handle to them rules out.
     pub(crate) async fn take(&self, demanded: Arc<AtomicBool>) -> Option<Turn> {
         let handed = {
             let mut waiting = self.lock();
@@ -61,7 +74,8 @@ impl Turns {
                 return Some(self.turn());
             }
             let (sender, handed) = oneshot::channel();
-            waiting.queue.push_back(Waiter { demanded, handed: sender });
+            let since = waiting.clock.now();
+            waiting.queue.push_back(Waiter { demanded, since, handed: sender });
             handed
         };
         handed.await.ok()
@@ -91,8 +105,8 @@ impl Drop for Turn {
         let Some(inner) = self.turns.take() else { return };
         let mut waiting = inner.lock().unwrap_or_else(|e| e.into_inner());
         loop {
-            let first_demanded = waiting.queue.iter().position(|w| w.demanded.load(Ordering::Acquire));
-            let Some(next) = waiting.queue.remove(first_demanded.unwrap_or(0)) else {
+            let next = next_in_line(&waiting.queue, waiting.clock.now());
+            let Some(next) = waiting.queue.remove(next) else {
                 waiting.free += 1;
                 return;
             };
@@ -106,12 +120,26 @@ impl Drop for Turn {
     }
 }
 
+/// Which waiter goes next: the first in line if it has waited too long
+/// (the first has waited longest), else the first demanded one, else the
+/// first.
+fn next_in_line(queue: &VecDeque<Waiter>, now: Instant) -> usize {
+    let overdue = queue.front().is_some_and(|w| now.duration_since(w.since) >= LONGEST_WAIT);
+    if overdue {
+        return 0;
+    }
+    queue.iter().position(|w| w.demanded.load(Ordering::Acquire)).unwrap_or(0)
+}
+
 #[cfg(test)]
 mod tests {
     use std::sync::atomic::{AtomicBool, Ordering};
     use std::sync::{Arc, Mutex};
 
-    use super::Turns;
+    use tokio::time::Duration;
+
+    use super::{LONGEST_WAIT, Turns};
+    use crate::clock::Clock;
 
     /// Runs the spawned tasks until none can move.
     async fn settle() {
@@ -127,7 +155,7 @@ mod tests {
     /// plan begins to wait.
     #[tokio::test(flavor = "current_thread")]
     async fn a_plan_demanded_while_it_waits_goes_before_map_news_that_waited_longer() {
-        let turns = Turns::new(1);
+        let turns = Turns::new(1, Clock::default());
         let held = turns.try_take().expect("one turn");
         let order = Arc::new(Mutex::new(Vec::new()));
         let mut flags = Vec::new();
@@ -154,11 +182,69 @@ mod tests {
         assert!(turns.try_take().is_some(), "the turn came back");
     }
 
+    /// Demands keep coming (here one waits whenever the turn is handed on),
+    /// yet a plan for map news that has waited [`LONGEST_WAIT`] goes next.
+    /// Without the bound it would wait behind every demand.
+    #[tokio::test(flavor = "current_thread")]
+    async fn map_news_waits_behind_demands_only_so_long() {
+        let (clock, time) = Clock::manual();
+        let turns = Turns::new(1, clock);
+        let held = turns.try_take().expect("one turn");
+        let order = Arc::new(Mutex::new(Vec::new()));
+        let spawn = |name: &'static str, demanded: bool| {
+            let (turns, order) = (turns.clone(), Arc::clone(&order));
+            tokio::spawn(async move {
+                let turn = turns.take(Arc::new(AtomicBool::new(demanded))).await.unwrap();
+                order.lock().unwrap().push(name);
+                settle().await;
+                drop(turn);
+            })
+        };
+        let news = spawn("map news", false);
+        settle().await;
+        let early = spawn("demanded early", true);
+        settle().await;
+        time.advance(LONGEST_WAIT);
+        let late = spawn("demanded late", true);
+        settle().await;
+        drop(held);
+        for task in [news, early, late] {
+            task.await.unwrap();
+        }
+        assert_eq!(*order.lock().unwrap(), ["map news", "demanded early", "demanded late"]);
+    }
+
+    /// A demand still goes before map news that has not waited so long.
+    #[tokio::test(flavor = "current_thread")]
+    async fn map_news_just_short_of_the_bound_still_gives_way() {
+        let (clock, time) = Clock::manual();
+        let turns = Turns::new(1, clock);
+        let held = turns.try_take().expect("one turn");
+        let order = Arc::new(Mutex::new(Vec::new()));
+        let mut tasks = Vec::new();
+        for (name, demanded) in [("map news", false), ("demanded", true)] {
+            let (turns, order) = (turns.clone(), Arc::clone(&order));
+            tasks.push(tokio::spawn(async move {
+                let turn = turns.take(Arc::new(AtomicBool::new(demanded))).await.unwrap();
+                order.lock().unwrap().push(name);
+                settle().await;
+                drop(turn);
+            }));
+            settle().await;
+        }
+        time.advance(LONGEST_WAIT - Duration::from_millis(1));
+        drop(held);
+        for task in tasks {
+            task.await.unwrap();
+        }
+        assert_eq!(*order.lock().unwrap(), ["demanded", "map news"]);
+    }
+
     /// A waiter cancelled while it waits is passed over, and no turn is
     /// lost or made: with two turns, two are free after all.
     #[tokio::test(flavor = "current_thread")]
     async fn a_cancelled_waiter_neither_loses_nor_makes_a_turn() {
-        let turns = Turns::new(2);
+        let turns = Turns::new(2, Clock::default());
         let (a, b) = (turns.try_take().unwrap(), turns.try_take().unwrap());
         let given_up = {
             let turns = turns.clone();
