@@ -138,7 +138,7 @@ mod tests {
 
     use tokio::time::Duration;
 
-    use super::{LONGEST_WAIT, Turns};
+    use super::{LONGEST_WAIT, Turn, Turns};
     use crate::clock::Clock;
 
     /// Runs the spawned tasks until none can move.
@@ -146,6 +146,41 @@ mod tests {
         for _ in 0..20 {
             tokio::task::yield_now().await;
         }
+    }
+
+    /// The names of the plans in the order they had their turns.
+    type Order = Arc<Mutex<Vec<&'static str>>>;
+
+    /// A plan named `name` that waits for a turn, demanded while `demanded`
+    /// holds, notes when it has it, and gives it back. It is queued once
+    /// this returns.
+    async fn wait_for_turn(
+        turns: &Turns,
+        order: &Order,
+        name: &'static str,
+        demanded: Arc<AtomicBool>,
+    ) -> tokio::task::JoinHandle<()> {
+        let (turns, order) = (turns.clone(), Arc::clone(order));
+        let waiter = tokio::spawn(async move {
+            let turn = turns.take(demanded).await.unwrap();
+            order.lock().unwrap().push(name);
+            settle().await;
+            drop(turn);
+        });
+        settle().await;
+        waiter
+    }
+
+    /// Hands the held turn on and waits for every plan to have had one.
+    async fn release(held: Turn, waiters: Vec<tokio::task::JoinHandle<()>>) {
+        drop(held);
+        for waiter in waiters {
+            waiter.await.unwrap();
+        }
+    }
+
+    fn flag(demanded: bool) -> Arc<AtomicBool> {
+        Arc::new(AtomicBool::new(demanded))
     }
 
     /// With the only turn held, two plans for map news wait; then a robot
@@ -157,27 +192,15 @@ mod tests {
     async fn a_plan_demanded_while_it_waits_goes_before_map_news_that_waited_longer() {
         let turns = Turns::new(1, Clock::default());
         let held = turns.try_take().expect("one turn");
-        let order = Arc::new(Mutex::new(Vec::new()));
-        let mut flags = Vec::new();
-        let mut waiters = Vec::new();
-        for name in ["first", "second"] {
-            let demanded = Arc::new(AtomicBool::new(false));
-            flags.push(Arc::clone(&demanded));
-            let (turns, order) = (turns.clone(), Arc::clone(&order));
-            waiters.push(tokio::spawn(async move {
-                let turn = turns.take(demanded).await.unwrap();
-                order.lock().unwrap().push(name);
-                settle().await;
-                drop(turn);
-            }));
-            settle().await;
-        }
+        let order = Order::default();
+        let second = flag(false);
+        let waiters = vec![
+            wait_for_turn(&turns, &order, "first", flag(false)).await,
+            wait_for_turn(&turns, &order, "second", Arc::clone(&second)).await,
+        ];
         assert!(order.lock().unwrap().is_empty(), "both wait");
-        flags[1].store(true, Ordering::Release);
-        drop(held);
-        for waiter in waiters {
-            waiter.await.unwrap();
-        }
+        second.store(true, Ordering::Release);
+        release(held, waiters).await;
         assert_eq!(*order.lock().unwrap(), ["second", "first"]);
         assert!(turns.try_take().is_some(), "the turn came back");
     }
@@ -190,27 +213,14 @@ mod tests {
         let (clock, time) = Clock::manual();
         let turns = Turns::new(1, clock);
         let held = turns.try_take().expect("one turn");
-        let order = Arc::new(Mutex::new(Vec::new()));
-        let spawn = |name: &'static str, demanded: bool| {
-            let (turns, order) = (turns.clone(), Arc::clone(&order));
-            tokio::spawn(async move {
-                let turn = turns.take(Arc::new(AtomicBool::new(demanded))).await.unwrap();
-                order.lock().unwrap().push(name);
-                settle().await;
-                drop(turn);
-            })
-        };
-        let news = spawn("map news", false);
-        settle().await;
-        let early = spawn("demanded early", true);
-        settle().await;
+        let order = Order::default();
+        let mut waiters = vec![
+            wait_for_turn(&turns, &order, "map news", flag(false)).await,
+            wait_for_turn(&turns, &order, "demanded early", flag(true)).await,
+        ];
         time.advance(LONGEST_WAIT);
-        let late = spawn("demanded late", true);
-        settle().await;
-        drop(held);
-        for task in [news, early, late] {
-            task.await.unwrap();
-        }
+        waiters.push(wait_for_turn(&turns, &order, "demanded late", flag(true)).await);
+        release(held, waiters).await;
         assert_eq!(*order.lock().unwrap(), ["map news", "demanded early", "demanded late"]);
     }
 
@@ -220,23 +230,13 @@ mod tests {
         let (clock, time) = Clock::manual();
         let turns = Turns::new(1, clock);
         let held = turns.try_take().expect("one turn");
-        let order = Arc::new(Mutex::new(Vec::new()));
-        let mut tasks = Vec::new();
-        for (name, demanded) in [("map news", false), ("demanded", true)] {
-            let (turns, order) = (turns.clone(), Arc::clone(&order));
-            tasks.push(tokio::spawn(async move {
-                let turn = turns.take(Arc::new(AtomicBool::new(demanded))).await.unwrap();
-                order.lock().unwrap().push(name);
-                settle().await;
-                drop(turn);
-            }));
-            settle().await;
-        }
+        let order = Order::default();
+        let waiters = vec![
+            wait_for_turn(&turns, &order, "map news", flag(false)).await,
+            wait_for_turn(&turns, &order, "demanded", flag(true)).await,
+        ];
         time.advance(LONGEST_WAIT - Duration::from_millis(1));
-        drop(held);
-        for task in tasks {
-            task.await.unwrap();
-        }
+        release(held, waiters).await;
         assert_eq!(*order.lock().unwrap(), ["demanded", "map news"]);
     }
 
@@ -248,7 +248,7 @@ mod tests {
         let (a, b) = (turns.try_take().unwrap(), turns.try_take().unwrap());
         let given_up = {
             let turns = turns.clone();
-            tokio::spawn(async move { drop(turns.take(Arc::new(AtomicBool::new(true))).await) })
+            tokio::spawn(async move { drop(turns.take(flag(true)).await) })
         };
         settle().await;
         given_up.abort();
