@@ -252,7 +252,7 @@ impl Mission {
     /// until `min_gap` has passed since the last plan. A demand (a task
     /// ended, a robot joined, ...) is planned at once.
     pub(crate) fn replan_reason_off_path(&self, now: Instant, min_gap: std::time::Duration) -> Option<String> {
-        if self.pending_replan.is_none() && now.duration_since(self.last_replan) < min_gap {
+        if !self.plan_demanded() && now.duration_since(self.last_replan) < min_gap {
             return None;
         }
         self.replan_reason(now)
