@@ -36,7 +36,7 @@
 use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor};
 use super::{Bid, Capabilities, Plan, PlanningInput, Policy, RobotView, Target, costs_to_cells};
 use crate::cost::{CostCache, CostMap, TraversalKind};
-use crate::grid::{Cell, CellRect, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
+use crate::grid::{Cell, CellRect, GridFrame, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
 
 pub(super) const NAME: &str = "simmons";
 
@@ -134,7 +134,7 @@ pub fn spaced(cells: &[Cell], spacing_cells: f64) -> Vec<Cell> {
 pub fn gain_region(grid: &OccupancyGrid, at: Cell, range_cells: f64) -> (f64, CellRect) {
     let frame = grid.frame();
     let range_sq = range_cells * range_cells;
-    let mut seen = std::collections::HashSet::new();
+    let mut seen = Marks::around(frame, at, range_sq);
     let mut stack: Vec<Cell> = NEIGHBOURS_8[..4]
         .iter()
         .map(|&(dx, dy)| Cell::new(at.x + dx, at.y + dy))
@@ -160,6 +160,34 @@ pub fn gain_region(grid: &OccupancyGrid, at: Cell, range_cells: f64) -> (f64, Ce
         }
     }
     (count as f64, rect)
+}
+
+/// The cells a gain region's flood fill has seen, over the only cells it can
+/// reach: on the grid and within the range of its frontier cell (or next to
+/// it): a flag per cell of that square instead of a hashed set, since the
+/// fill runs for every candidate cell at every replanning.
+struct Marks {
+    window: CellRect,
+    seen: Vec<bool>,
+}
+
+impl Marks {
+    fn around(frame: &GridFrame, at: Cell, range_sq: f64) -> Self {
+        // At least the four neighbours the fill starts from; NaN gives 1.
+        let reach = if range_sq >= 1.0 { range_sq.sqrt().min(f64::from(u32::MAX)) as u32 } else { 1 };
+        let window = frame.clip(&CellRect::new(at.x, at.y, 1, 1).grown(reach)).unwrap_or(CellRect::new(0, 0, 0, 0));
+        Self { window, seen: vec![false; window.area() as usize] }
+    }
+
+    /// Marks `cell`; whether it was not marked before. Every cell the fill
+    /// offers lies in the window; one off it is never taken.
+    fn insert(&mut self, cell: Cell) -> bool {
+        if !self.window.contains(cell) {
+            return false;
+        }
+        let i = (cell.y - self.window.y) as usize * self.window.width as usize + (cell.x - self.window.x) as usize;
+        !std::mem::replace(&mut self.seen[i], true)
+    }
 }
 
 /// A robot's bids (§4.1): for spaced frontier cells it can reach, the path
@@ -202,18 +230,20 @@ impl Coverage {
 
     fn add(&mut self, rect: &CellRect) {
         let Some(r) = rect.intersection(&self.bounds) else { return };
-        let w = self.bounds.width as usize;
-        for y in r.y..r.y_end() {
-            let row = (y - self.bounds.y) as usize * w;
-            let (x0, x1) = ((r.x - self.bounds.x) as usize, (r.x_end() - self.bounds.x) as usize);
-            self.covered[row + x0..row + x1].fill(1);
-        }
         let (w, h) = (self.bounds.width as usize, self.bounds.height as usize);
-        for y in 0..h {
-            let mut run = 0u32;
-            for x in 0..w {
+        let (x0, x1) = ((r.x - self.bounds.x) as usize, (r.x_end() - self.bounds.x) as usize);
+        let y0 = (r.y - self.bounds.y) as usize;
+        for y in y0..(r.y_end() - self.bounds.y) as usize {
+            self.covered[y * w + x0..y * w + x1].fill(1);
+        }
+        // Only the sums right of and above the rectangle's lower-left corner
+        // change; a row's run up to column x0 is read from the sums left of it.
+        let stride = w + 1;
+        for y in y0..h {
+            let mut run = self.sums[(y + 1) * stride + x0] - self.sums[y * stride + x0];
+            for x in x0..w {
                 run += u32::from(self.covered[y * w + x]);
-                self.sums[(y + 1) * (w + 1) + x + 1] = self.sums[y * (w + 1) + x + 1] + run;
+                self.sums[(y + 1) * stride + x + 1] = self.sums[y * stride + x + 1] + run;
             }
         }
     }
@@ -294,6 +324,20 @@ impl Policy for Simmons {
             assigned.add(&region);
         }
         targets = self.continued(input, targets);
+        // A bid on what is no longer frontier is stale; the map does not
+        // change while the robots are assigned, so neither does that.
+        let live: Vec<Vec<usize>> = bids
+            .iter()
+            .zip(input.robots)
+            .map(|(robot_bids, robot)| {
+                (0..robot_bids.len())
+                    .filter(|&b| {
+                        let target = robot_bids[b].target;
+                        robot.may_target(target) && crate::frontier::is_frontier(grid, target)
+                    })
+                    .collect()
+            })
+            .collect();
         loop {
             let mut best: Option<(f64, usize, usize)> = None;
             for (i, robot_bids) in bids.iter().enumerate() {
@@ -303,11 +347,8 @@ impl Policy for Simmons {
                 let robot = &input.robots[i];
                 let current_region = robot.current.and_then(|c| c.gain_region);
                 let metres_per_cell = resolution * resolution / (2.0 * robot.capabilities.sensor_range_m);
-                for (b, bid) in robot_bids.iter().enumerate() {
-                    // A bid on what is no longer frontier is stale.
-                    if !robot.may_target(bid.target) || !crate::frontier::is_frontier(grid, bid.target) {
-                        continue;
-                    }
+                for &b in &live[i] {
+                    let bid = &robot_bids[b];
                     let mut gain = (1.0 - assigned.overlap(&bid.gain_region)) * bid.information_gain;
                     if current_region.is_some_and(|r| r.contains(bid.target)) {
                         gain /= self.hysteresis_ratio;
@@ -389,6 +430,53 @@ mod tests {
         assert_eq!(rect, CellRect::new(1, 0, 5, 3));
         let (near, _) = gain_region(&grid, Cell::new(3, 0), 1.0);
         assert_eq!(near, 1.0, "only the cell right above is within range");
+    }
+
+    /// The worst ranges a robot's capabilities could give, and a frontier
+    /// cell on the grid's edge: the fill stays on the grid and within range.
+    #[test]
+    fn gain_regions_take_any_range() {
+        let grid = grid_from_picture(&[
+            "??????", //
+            "?.....", //
+        ]);
+        let at = Cell::new(1, 0);
+        assert_eq!(gain_region(&grid, at, f64::INFINITY).0, 7.0, "every unknown cell");
+        assert_eq!(gain_region(&grid, at, 1e12).0, 7.0);
+        assert_eq!(gain_region(&grid, at, 2.0).0, 4.0, "(0, 0), (0, 1), (1, 1) and (2, 1)");
+        for start_only in [1.0, 0.5, 0.0, f64::NAN] {
+            assert_eq!(gain_region(&grid, at, start_only).0, 2.0, "range {start_only}: the neighbours it starts from");
+        }
+        assert_eq!(gain_region(&grid, at, -3.0), gain_region(&grid, at, 3.0), "only the range's square counts");
+    }
+
+    /// The summed-area table kept up to date one region at a time answers
+    /// as counting the covered cells does.
+    #[test]
+    fn coverage_answers_as_counting_cells_does() {
+        let bounds = CellRect::new(-3, 2, 17, 11);
+        let mut rng = crate::rng::SplitMix64::new(7);
+        let mut rect = || {
+            let (x, y) = (rng.below(24) as i32 - 6, rng.below(18) as i32 - 2);
+            CellRect::new(x, y, 1 + rng.below(8) as u32, 1 + rng.below(8) as u32)
+        };
+        let mut coverage = Coverage::new(bounds);
+        let mut added: Vec<CellRect> = Vec::new();
+        for _ in 0..40 {
+            let region = rect();
+            coverage.add(&region);
+            added.push(region);
+            for _ in 0..20 {
+                let probe = rect();
+                let Some(inside) = probe.intersection(&bounds) else { continue };
+                let covered = inside.cells().filter(|&c| added.iter().any(|r| r.contains(c))).count();
+                assert_eq!(
+                    coverage.overlap(&probe),
+                    covered as f64 / inside.area() as f64,
+                    "{probe:?} after {added:?}"
+                );
+            }
+        }
     }
 
     /// Simmons et al. 2000, §4.2: "two robots are tasked to explore adjacent
