@@ -162,10 +162,10 @@ pub fn gain_region(grid: &OccupancyGrid, at: Cell, range_cells: f64) -> (f64, Ce
     (count as f64, rect)
 }
 
-/// The cells a gain region's flood fill has seen, over the only cells it can
-/// reach: on the grid and within the range of its frontier cell (or next to
-/// it): a flag per cell of that square instead of a hashed set, since the
-/// fill runs for every candidate cell at every replanning.
+/// The cells a gain region's flood fill has seen: a flag per cell of the
+/// only square the fill can reach (on the grid, within the range of its
+/// frontier cell or next to it) instead of a hashed set, since the fill
+/// runs for every candidate cell at every replanning.
 struct Marks {
     window: CellRect,
     seen: Vec<bool>,
