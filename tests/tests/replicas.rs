@@ -11,7 +11,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use client_sim::RunConfig;
-use common::{binary, bundled_map, create_mission, patch, register, update, wait_until_serving};
+use common::{binary, bundled_map, create_mission, patch, register, registration, update, wait_until_serving};
 use exploration_proto::v1::fleet_client::FleetClient;
 use exploration_proto::v1::missions_client::MissionsClient;
 use sqlx::Connection;
@@ -86,7 +86,7 @@ async fn a_fleet_completes_through_three_kills_of_its_missions_holder() {
     config.server = Some(list.join(","));
     config.cell_size = Some(0.25);
     config.retry_budget = Duration::from_secs(60);
-    let fleet = tokio::spawn(async move { client_sim::run(&config).await });
+    let mut fleet = tokio::spawn(async move { client_sim::run(&config).await });
 
     let mut killed = Vec::new();
     for round in 1..=3 {
@@ -99,7 +99,10 @@ async fn a_fleet_completes_through_three_kills_of_its_missions_holder() {
             {
                 break owner;
             }
-            assert!(!fleet.is_finished(), "the fleet finished before kill {round}");
+            if fleet.is_finished() {
+                let outcome = (&mut fleet).await;
+                panic!("the fleet finished before kill {round}: {outcome:?}");
+            }
             tokio::time::sleep(Duration::from_millis(20)).await;
         };
         let index = replicas.iter().position(|r| r.id == owner.0).unwrap();
@@ -248,6 +251,41 @@ async fn a_replica_paused_past_its_lease_cannot_write_and_gives_the_mission_up()
     // B carries on where it was.
     let next = fleet_b.update_map(update(robot.id, 3, 0.55, 0.55, vec![])).await.unwrap().into_inner();
     assert_eq!(next.applied_seq, 3);
+}
+
+/// Another replica's lease keeper may claim a new mission in the moment
+/// between its creation and its creator's claim: under load in CI the
+/// creator then answered CreateMission with INTERNAL, for a mission it had
+/// made. Here a trigger is that other keeper, at its quickest: each new
+/// mission is claimed by "elsewhere" as it is inserted. The creation is
+/// answered with the mission, and its robots are sent to the holder.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_mission_another_replica_claims_as_it_is_created_is_created_all_the_same() {
+    let Some(url) = common::postgres_database("replicas_claimed_at_once").await else { return };
+    let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
+    let a = Replica::spawn("a", free_port(), &url, "2", "0.5");
+    wait_until_serving(&a.url(), Duration::from_secs(30)).await;
+    let elsewhere = "http://127.0.0.1:9";
+    sqlx::raw_sql(
+        "CREATE FUNCTION claimed_elsewhere() RETURNS trigger AS $$ BEGIN
+             INSERT INTO mission_leases (mission_id, owner, address, token, expires_at)
+             VALUES (NEW.id, 'elsewhere', 'http://127.0.0.1:9', 1, 9000000000000);
+             RETURN NEW;
+         END $$ LANGUAGE plpgsql;
+         CREATE TRIGGER claimed_elsewhere AFTER INSERT ON missions FOR EACH ROW EXECUTE FUNCTION claimed_elsewhere();",
+    )
+    .execute(&mut db)
+    .await
+    .unwrap();
+    let channel = tonic::transport::Endpoint::from_shared(a.url()).unwrap().connect_lazy();
+    let mission = create_mission(&mut MissionsClient::new(channel.clone()), 40, 40, "nearest").await;
+    assert_eq!(holder(&mut db, mission.id as i64).await, Some(("elsewhere".to_owned(), 1)));
+    let missions: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM missions").fetch_one(&mut db).await.unwrap();
+    assert_eq!(missions, 1);
+    let pointed =
+        FleetClient::new(channel).register_robot(registration(mission.id, "r", 0.55, 0.55)).await.unwrap_err();
+    assert_eq!(pointed.code(), Code::Unavailable, "{pointed:?}");
+    assert_eq!(pointed.metadata().get("exploration-owner").unwrap(), elsewhere);
 }
 
 /// How many missions each replica holds now, by name.

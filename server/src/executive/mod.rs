@@ -413,11 +413,19 @@ impl Executive {
         };
         tracing::info!(mission = record.id, policy = record.spec.policy.name(), cells, "mission created");
         let mut mission = Mission::new(record.clone(), self.settings.clock.now());
-        if let Some(ownership) = &self.ownership
-            && let Err(e) = self.claim_new(ownership, &mut mission).await
-        {
-            self.usage.release(cells);
-            return Err(e);
+        if let Some(ownership) = &self.ownership {
+            match self.claim_new(ownership, &mut mission).await {
+                Ok(true) => {}
+                // Made, and held elsewhere: its robots are sent to the holder.
+                Ok(false) => {
+                    self.usage.release(cells);
+                    return Ok(MissionSummary::stored(record));
+                }
+                Err(e) => {
+                    self.usage.release(cells);
+                    return Err(e);
+                }
+            }
         }
         let summary = Self::summary(&mission);
         let cell = Arc::new(MissionCell::new(mission));

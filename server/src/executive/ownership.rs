@@ -195,17 +195,20 @@ impl Executive {
     }
 
     /// A mission this executive created: claimed at once (the caller holds
-    /// [`Ownership::claiming`] until the mission is in its map).
-    pub(super) async fn claim_new(&self, ownership: &Ownership, mission: &mut Mission) -> Result<(), Error> {
+    /// [`Ownership::claiming`] until the mission is in its map). Whether
+    /// this replica holds it: another replica's lease keeper may have seen
+    /// the new mission unclaimed and taken it first, and then the mission is
+    /// that replica's, created all the same.
+    pub(super) async fn claim_new(&self, ownership: &Ownership, mission: &mut Mission) -> Result<bool, Error> {
         let id = mission.record().id;
         let ReplicaSettings { claimant, lease, grace } = &ownership.settings;
-        let lease =
-            self.store.claim(id, claimant, Timestamp::now(), *lease, *grace).await?.ok_or_else(|| {
-                Error::Internal(format!("mission {id} was claimed by another replica as it was created"))
-            })?;
+        let Some(lease) = self.store.claim(id, claimant, Timestamp::now(), *lease, *grace).await? else {
+            tracing::info!(mission = id, "mission created; another replica claimed it first");
+            return Ok(false);
+        };
         mission.set_fence(Fence { mission_id: id, token: lease.token });
         ownership.held().insert(id, lease.token);
-        Ok(())
+        Ok(true)
     }
 
     /// Lets a mission go: another replica holds it now. Its planner stops
