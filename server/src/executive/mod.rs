@@ -413,19 +413,14 @@ impl Executive {
         };
         tracing::info!(mission = record.id, policy = record.spec.policy.name(), cells, "mission created");
         let mut mission = Mission::new(record.clone(), self.settings.clock.now());
-        if let Some(ownership) = &self.ownership {
-            match self.claim_new(ownership, &mut mission).await {
-                Ok(true) => {}
-                // Made, and held elsewhere: its robots are sent to the holder.
-                Ok(false) => {
-                    self.usage.release(cells);
-                    return Ok(MissionSummary::stored(record));
-                }
-                Err(e) => {
-                    self.usage.release(cells);
-                    return Err(e);
-                }
-            }
+        let held_here = match &self.ownership {
+            Some(ownership) => self.claim_new(ownership, &mut mission).await,
+            None => Ok(true),
+        };
+        if !matches!(held_here, Ok(true)) {
+            self.usage.release(cells);
+            // Made, and held elsewhere: its robots are sent to the holder.
+            return held_here.map(|_| MissionSummary::stored(record));
         }
         let summary = Self::summary(&mission);
         let cell = Arc::new(MissionCell::new(mission));
