@@ -3,7 +3,8 @@
 //! fleet's mission survives the replica that holds it killed with SIGKILL
 //! three times, a different replica each time; a replica paused past its
 //! lease cannot write for the mission once another has taken it; replicas
-//! that start or stop share the missions evenly again.
+//! that start or stop share the missions evenly again; a mission is created
+//! once however its first claim goes.
 
 mod common;
 
@@ -286,6 +287,45 @@ async fn a_mission_another_replica_claims_as_it_is_created_is_created_all_the_sa
         FleetClient::new(channel).register_robot(registration(mission.id, "r", 0.55, 0.55)).await.unwrap_err();
     assert_eq!(pointed.code(), Code::Unavailable, "{pointed:?}");
     assert_eq!(pointed.metadata().get("exploration-owner").unwrap(), elsewhere);
+}
+
+/// A claim that fails in the store after the mission is stored: the
+/// mission is created all the same (an error would have the caller create
+/// it again), nobody holds it, and the first request for it claims it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_mission_whose_claim_fails_is_created_once_and_claimed_when_asked_for() {
+    let Some(url) = common::postgres_database("replicas_claim_fails").await else { return };
+    let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
+    let a = Replica::spawn("a", free_port(), &url, "2", "0.5");
+    wait_until_serving(&a.url(), Duration::from_secs(30)).await;
+    sqlx::raw_sql(
+        "CREATE FUNCTION no_claims() RETURNS trigger AS $$ BEGIN
+             RAISE EXCEPTION 'leases refused by the test';
+         END $$ LANGUAGE plpgsql;
+         CREATE TRIGGER no_claims BEFORE INSERT ON mission_leases FOR EACH ROW EXECUTE FUNCTION no_claims();",
+    )
+    .execute(&mut db)
+    .await
+    .unwrap();
+    let channel = tonic::transport::Endpoint::from_shared(a.url()).unwrap().connect_lazy();
+    let mission = create_mission(&mut MissionsClient::new(channel.clone()), 40, 40, "nearest").await;
+    let missions: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM missions").fetch_one(&mut db).await.unwrap();
+    assert_eq!(missions, 1);
+    assert_eq!(holder(&mut db, mission.id as i64).await, None);
+    sqlx::raw_sql("DROP TRIGGER no_claims ON mission_leases").execute(&mut db).await.unwrap();
+    // As a robot would: UNAVAILABLE ("changing hands") until a claim holds.
+    let mut fleet = FleetClient::new(channel);
+    let start = Instant::now();
+    loop {
+        match fleet.register_robot(registration(mission.id, "r", 0.55, 0.55)).await {
+            Ok(_) => break,
+            Err(status) if status.code() == Code::Unavailable && start.elapsed() < Duration::from_secs(30) => {
+                tokio::time::sleep(Duration::from_millis(100)).await
+            }
+            Err(status) => panic!("the mission was never claimed: {status:?}"),
+        }
+    }
+    assert_eq!(holder(&mut db, mission.id as i64).await.map(|(owner, _)| owner).as_deref(), Some("a"));
 }
 
 /// How many missions each replica holds now, by name.

@@ -419,8 +419,15 @@ impl Executive {
         };
         if !matches!(held_here, Ok(true)) {
             self.usage.release(cells);
-            // Made, and held elsewhere: its robots are sent to the holder.
-            return held_here.map(|_| MissionSummary::stored(record));
+            if let Err(e) = held_here {
+                // The mission is stored: answering with an error would have
+                // the caller create it twice. Unheld, it is claimed at a
+                // lease keeper's next round; its robots retry until then.
+                tracing::warn!(mission = record.id, error = %e, "mission created; claiming it failed, left to the lease keepers");
+            }
+            // Made, and held elsewhere or by nobody yet: its robots are sent
+            // to the holder, or told to retry shortly.
+            return Ok(MissionSummary::stored(record));
         }
         let summary = Self::summary(&mission);
         let cell = Arc::new(MissionCell::new(mission));
