@@ -3,6 +3,7 @@ proto/ by grpcio-tools (no generated code is checked in)."""
 
 from __future__ import annotations
 
+import importlib.metadata
 import importlib.resources
 from pathlib import Path
 
@@ -48,4 +49,14 @@ class BuildWithProto(build_py):
         generate(Path(self.build_lib) / "exploration_executive" / "_proto")
 
 
-setup(cmdclass={"build_py": BuildWithProto})
+def dependencies() -> list[str]:
+    """The runtime the generated code was made for, at least: a stub from
+    grpcio-tools X refuses to load under a grpcio older than X (a venv kept
+    with grpcio 1.85.3 failed so beside grpcio-tools 1.85.4), and protobuf's
+    generated modules check their runtime likewise."""
+    tools = importlib.metadata.version("grpcio-tools")
+    protobuf = importlib.metadata.version("protobuf")
+    return [f"grpcio>={tools}", f"protobuf>={protobuf}", "numpy>=1.24", "PyYAML>=6"]
+
+
+setup(cmdclass={"build_py": BuildWithProto}, install_requires=dependencies())
