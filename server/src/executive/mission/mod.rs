@@ -16,6 +16,7 @@
 //! of Simmons et al. 2000, §4.2, policy changes, forbidden regions and
 //! pausing; [`planning`] turns a plan into tasks.
 
+mod job;
 mod lifecycle;
 mod map_log;
 mod operator;
@@ -24,7 +25,8 @@ mod reports;
 #[cfg(test)]
 pub(crate) mod testing;
 
-pub(crate) use planning::{JobOutcome, PlanBasis};
+pub(crate) use job::JobOutcome;
+pub(crate) use planning::PlanBasis;
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
