@@ -262,23 +262,14 @@ async fn a_replica_paused_past_its_lease_cannot_write_and_gives_the_mission_up()
 /// answered with the mission, and its robots are sent to the holder.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_mission_another_replica_claims_as_it_is_created_is_created_all_the_same() {
-    let Some(url) = common::postgres_database("replicas_claimed_at_once").await else { return };
-    let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
-    let a = Replica::spawn("a", free_port(), &url, "2", "0.5");
-    wait_until_serving(&a.url(), Duration::from_secs(30)).await;
     let elsewhere = "http://127.0.0.1:9";
-    sqlx::raw_sql(
-        "CREATE FUNCTION claimed_elsewhere() RETURNS trigger AS $$ BEGIN
+    let trigger = "CREATE FUNCTION claimed_elsewhere() RETURNS trigger AS $$ BEGIN
              INSERT INTO mission_leases (mission_id, owner, address, token, expires_at)
              VALUES (NEW.id, 'elsewhere', 'http://127.0.0.1:9', 1, 9000000000000);
              RETURN NEW;
          END $$ LANGUAGE plpgsql;
-         CREATE TRIGGER claimed_elsewhere AFTER INSERT ON missions FOR EACH ROW EXECUTE FUNCTION claimed_elsewhere();",
-    )
-    .execute(&mut db)
-    .await
-    .unwrap();
-    let channel = tonic::transport::Endpoint::from_shared(a.url()).unwrap().connect_lazy();
+         CREATE TRIGGER claimed_elsewhere AFTER INSERT ON missions FOR EACH ROW EXECUTE FUNCTION claimed_elsewhere();";
+    let Some((mut db, _a, channel)) = lone_replica_with("replicas_claimed_at_once", trigger).await else { return };
     let mission = create_mission(&mut MissionsClient::new(channel.clone()), 40, 40, "nearest").await;
     assert_eq!(holder(&mut db, mission.id as i64).await, Some(("elsewhere".to_owned(), 1)));
     let missions: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM missions").fetch_one(&mut db).await.unwrap();
@@ -291,23 +282,15 @@ async fn a_mission_another_replica_claims_as_it_is_created_is_created_all_the_sa
 
 /// A claim that fails in the store after the mission is stored: the
 /// mission is created all the same (an error would have the caller create
-/// it again), nobody holds it, and the first request for it claims it.
+/// it again), nobody holds it, and a lease keeper claims it once claims
+/// work again; its robot is told to retry until then.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_mission_whose_claim_fails_is_created_once_and_claimed_when_asked_for() {
-    let Some(url) = common::postgres_database("replicas_claim_fails").await else { return };
-    let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
-    let a = Replica::spawn("a", free_port(), &url, "2", "0.5");
-    wait_until_serving(&a.url(), Duration::from_secs(30)).await;
-    sqlx::raw_sql(
-        "CREATE FUNCTION no_claims() RETURNS trigger AS $$ BEGIN
+    let trigger = "CREATE FUNCTION no_claims() RETURNS trigger AS $$ BEGIN
              RAISE EXCEPTION 'leases refused by the test';
          END $$ LANGUAGE plpgsql;
-         CREATE TRIGGER no_claims BEFORE INSERT ON mission_leases FOR EACH ROW EXECUTE FUNCTION no_claims();",
-    )
-    .execute(&mut db)
-    .await
-    .unwrap();
-    let channel = tonic::transport::Endpoint::from_shared(a.url()).unwrap().connect_lazy();
+         CREATE TRIGGER no_claims BEFORE INSERT ON mission_leases FOR EACH ROW EXECUTE FUNCTION no_claims();";
+    let Some((mut db, _a, channel)) = lone_replica_with("replicas_claim_fails", trigger).await else { return };
     let mission = create_mission(&mut MissionsClient::new(channel.clone()), 40, 40, "nearest").await;
     let missions: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM missions").fetch_one(&mut db).await.unwrap();
     assert_eq!(missions, 1);
@@ -326,6 +309,22 @@ async fn a_mission_whose_claim_fails_is_created_once_and_claimed_when_asked_for(
         }
     }
     assert_eq!(holder(&mut db, mission.id as i64).await.map(|(owner, _)| owner).as_deref(), Some("a"));
+}
+
+/// One replica, "a", serving a fresh database named `name` on which `sql`
+/// was run (a trigger standing in for another replica or a failing store);
+/// `None` where no PostgreSQL server is configured.
+async fn lone_replica_with(
+    name: &str,
+    sql: &'static str,
+) -> Option<(sqlx::PgConnection, Replica, tonic::transport::Channel)> {
+    let url = common::postgres_database(name).await?;
+    let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
+    let a = Replica::spawn("a", free_port(), &url, "2", "0.5");
+    wait_until_serving(&a.url(), Duration::from_secs(30)).await;
+    sqlx::raw_sql(sql).execute(&mut db).await.unwrap();
+    let channel = tonic::transport::Endpoint::from_shared(a.url()).unwrap().connect_lazy();
+    Some((db, a, channel))
 }
 
 /// How many missions each replica holds now, by name.
