@@ -415,16 +415,10 @@ impl Executive {
         let mut mission = Mission::new(record.clone(), self.settings.clock.now());
         let held_here = match &self.ownership {
             Some(ownership) => self.claim_new(ownership, &mut mission).await,
-            None => Ok(true),
+            None => true,
         };
-        if !matches!(held_here, Ok(true)) {
+        if !held_here {
             self.usage.release(cells);
-            if let Err(e) = held_here {
-                // The mission is stored: answering with an error would have
-                // the caller create it twice. Unheld, it is claimed at a
-                // lease keeper's next round; its robots retry until then.
-                tracing::warn!(mission = record.id, error = %e, "mission created; claiming it failed, left to the lease keepers");
-            }
             // Made, and held elsewhere or by nobody yet: its robots are sent
             // to the holder, or told to retry shortly.
             return Ok(MissionSummary::stored(record));

@@ -196,19 +196,28 @@ impl Executive {
 
     /// A mission this executive created: claimed at once (the caller holds
     /// [`Ownership::claiming`] until the mission is in its map). Whether
-    /// this replica holds it: another replica's lease keeper may have seen
-    /// the new mission unclaimed and taken it first, and then the mission is
-    /// that replica's, created all the same.
-    pub(super) async fn claim_new(&self, ownership: &Ownership, mission: &mut Mission) -> Result<bool, Error> {
+    /// this replica holds it. It may not: another replica's lease keeper may
+    /// have seen the new mission unclaimed and taken it first, or the claim
+    /// failed in the store. Either way the mission is stored and created all
+    /// the same (an error would have its caller create it twice); unheld, a
+    /// lease keeper claims it at its next round.
+    pub(super) async fn claim_new(&self, ownership: &Ownership, mission: &mut Mission) -> bool {
         let id = mission.record().id;
         let ReplicaSettings { claimant, lease, grace } = &ownership.settings;
-        let Some(lease) = self.store.claim(id, claimant, Timestamp::now(), *lease, *grace).await? else {
-            tracing::info!(mission = id, "mission created; another replica claimed it first");
-            return Ok(false);
+        let lease = match self.store.claim(id, claimant, Timestamp::now(), *lease, *grace).await {
+            Ok(Some(lease)) => lease,
+            Ok(None) => {
+                tracing::info!(mission = id, "mission created; another replica claimed it first");
+                return false;
+            }
+            Err(e) => {
+                tracing::warn!(mission = id, error = %e, "mission created; claiming it failed, left to the lease keepers");
+                return false;
+            }
         };
         mission.set_fence(Fence { mission_id: id, token: lease.token });
         ownership.held().insert(id, lease.token);
-        Ok(true)
+        true
     }
 
     /// Lets a mission go: another replica holds it now. Its planner stops
