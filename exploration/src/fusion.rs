@@ -120,11 +120,16 @@ pub enum PatchError {
 /// The occupancy byte of a cell the robot does not know (ROS's -1).
 pub const UNKNOWN_PERCENT: u8 = 255;
 
-/// The log-odds of each occupancy percentage: those of the probability
-/// `percent / 100`, clamped as every patch is, so that a cell sent as a
-/// percentage fuses exactly as the same probability sent as a float.
-static LOG_ODDS_OF_PERCENT: std::sync::LazyLock<[f32; 101]> = std::sync::LazyLock::new(|| {
-    std::array::from_fn(|p| log_odds_from_probability(p as f32 / 100.0).clamp(LOG_ODDS_MIN, LOG_ODDS_MAX))
+/// The log-odds of each occupancy byte: for a percentage, those of the
+/// probability `percent / 100`, clamped as every patch is, so that a cell
+/// sent as a percentage fuses exactly as the same probability sent as a
+/// float; NaN for [`UNKNOWN_PERCENT`] (and for the bytes that are neither,
+/// which [`Patch::from_occupancy_percent`] refuses before reading it).
+static LOG_ODDS_OF_BYTE: std::sync::LazyLock<[f32; 256]> = std::sync::LazyLock::new(|| {
+    std::array::from_fn(|b| match b {
+        0..=100 => log_odds_from_probability(b as f32 / 100.0).clamp(LOG_ODDS_MIN, LOG_ODDS_MAX),
+        _ => f32::NAN,
+    })
 });
 
 /// A validated rectangle of one robot's map, in log-odds.
@@ -133,6 +138,9 @@ pub struct Patch {
     rect: CellRect,
     /// Log-odds per cell; NaN marks a cell the robot does not know.
     log_odds: Vec<f32>,
+    /// The occupancy bytes the patch was made from, when it came as ROS
+    /// sends a map: they make it again exactly, in a quarter of the space.
+    occupancy_percent: Option<Vec<u8>>,
 }
 
 impl Patch {
@@ -154,17 +162,14 @@ impl Patch {
     /// A table lookup per cell, where probabilities take a logarithm.
     pub fn from_occupancy_percent(rect: CellRect, occupancy: &[u8]) -> Result<Self, PatchError> {
         Self::check_count(rect, occupancy.len())?;
-        let table = &*LOG_ODDS_OF_PERCENT;
-        // Sized once: collecting into a Result cannot know the length, and
-        // grew the vector a dozen times for a sensor's footprint.
-        let mut log_odds = Vec::with_capacity(occupancy.len());
-        for (index, &value) in occupancy.iter().enumerate() {
-            log_odds.push(match value {
-                UNKNOWN_PERCENT => f32::NAN,
-                _ => *table.get(usize::from(value)).ok_or(PatchError::PercentOutOfRange { index, value })?,
-            });
+        if let Some(index) = occupancy.iter().position(|&v| v > 100 && v != UNKNOWN_PERCENT) {
+            return Err(PatchError::PercentOutOfRange { index, value: occupancy[index] });
         }
-        Ok(Self { rect, log_odds })
+        // Every byte valid, the lookup needs no branch, and the vector is
+        // sized once.
+        let table = &*LOG_ODDS_OF_BYTE;
+        let log_odds = occupancy.iter().map(|&v| table[usize::from(v)]).collect();
+        Ok(Self { rect, log_odds, occupancy_percent: Some(occupancy.to_vec()) })
     }
 
     /// A patch of log-odds; `unknown` is empty or one flag per cell.
@@ -184,7 +189,7 @@ impl Patch {
             return Err(PatchError::StoredOutOfRange { index, value });
         }
         Self::check_count(rect, log_odds.len())?;
-        Ok(Self { rect, log_odds })
+        Ok(Self { rect, log_odds, occupancy_percent: None })
     }
 
     fn build(
@@ -206,7 +211,7 @@ impl Patch {
                 convert(index, value)?.clamp(LOG_ODDS_MIN, LOG_ODDS_MAX)
             });
         }
-        Ok(Self { rect, log_odds })
+        Ok(Self { rect, log_odds, occupancy_percent: None })
     }
 
     /// Checks that `rect` is not empty and that `got` values cover it.
@@ -229,6 +234,13 @@ impl Patch {
     /// Log-odds per cell, row-major; NaN where the robot does not know the cell.
     pub fn log_odds(&self) -> &[f32] {
         &self.log_odds
+    }
+
+    /// The ROS occupancy bytes (0 to 100, [`UNKNOWN_PERCENT`]) the patch was
+    /// made from, if it was: [`Self::from_occupancy_percent`] on them gives
+    /// this patch again, bit for bit.
+    pub fn occupancy_percent(&self) -> Option<&[u8]> {
+        self.occupancy_percent.as_deref()
     }
 
     /// Number of cells the robot knows.
@@ -542,7 +554,11 @@ impl MapFusion {
         let width = TILE.min(self.frame.width as usize - x);
         let height = TILE.min(self.frame.height as usize - y);
         let log_odds = (0..height).flat_map(|dy| tile[dy * TILE..dy * TILE + width].iter().copied()).collect();
-        Patch { rect: CellRect::new(x as i32, y as i32, width as u32, height as u32), log_odds }
+        Patch {
+            rect: CellRect::new(x as i32, y as i32, width as u32, height as u32),
+            log_odds,
+            occupancy_percent: None,
+        }
     }
 
     /// Which tile a patch covers exactly, clipped to the grid, if any.
@@ -649,6 +665,9 @@ mod tests {
             assert_eq!(a.to_bits(), b.to_bits(), "byte {i}: {a} against {b}");
         }
         assert_eq!(from_bytes.known_cells(), 101);
+        // The bytes are kept, so that a store can keep them instead.
+        assert_eq!(from_bytes.occupancy_percent(), Some(&bytes[..]));
+        assert_eq!(from_floats.occupancy_percent(), None);
     }
 
     #[test]

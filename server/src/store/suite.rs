@@ -81,6 +81,7 @@ on_both_engines!(
     a_group_commit_fails_only_the_bad_changeset,
     what_follows_a_refused_changeset_is_not_written,
     a_folded_patch_log_restores_the_same_map,
+    patches_come_back_bit_for_bit_whichever_way_they_came,
     a_lease_passes_on_only_once_it_ran_out_and_fences_its_old_holder,
     replicas_are_counted_while_their_announcements_last,
 );
@@ -313,6 +314,37 @@ async fn a_changeset_round_trips(db: TestDb) {
     store.commit(cleared).await.unwrap();
     assert_eq!(store.given_segmentation(mission.id).await.unwrap(), None);
     assert_eq!(store.max_task_id().await.unwrap(), 7);
+}
+
+/// A patch sent as ROS's occupancy bytes is kept as those bytes, and one
+/// sent as floats as its log-odds; both read back bit for bit, unknown
+/// cells included, and the bytes with them.
+async fn patches_come_back_bit_for_bit_whichever_way_they_came(db: TestDb) {
+    let store = db.open().await;
+    let mission = store.create_mission(&spec(), Timestamp(1_000)).await.unwrap();
+    let robot =
+        store.create_robot(mission.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(2_000), None).await.unwrap();
+    let rect = CellRect::new(0, 0, 34, 3);
+    let bytes: Vec<u8> = (0..=100).chain([255]).collect();
+    let floats: Vec<f32> = (0..102).map(|i| (i % 7) as f32 / 7.0).collect();
+    let unknown: Vec<bool> = (0..102).map(|i| i % 5 == 0).collect();
+    let sent = [
+        Patch::from_occupancy_percent(rect, &bytes).unwrap(),
+        Patch::from_probabilities(rect, &floats, &unknown).unwrap(),
+    ];
+    for (seq, patch) in (1..).zip(&sent) {
+        let logged = LoggedPatch { robot_id: robot.id, seq, patch: Arc::new(patch.clone()) };
+        store.commit(Changeset { patches: vec![logged], ..Changeset::default() }).await.unwrap();
+    }
+    let read = store.stored_map(&mission, None).await.unwrap().patches;
+    assert_eq!(read.len(), 2);
+    for (logged, patch) in read.iter().zip(&sent) {
+        let bits = |p: &Patch| p.log_odds().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(logged.patch.rect(), rect);
+        assert_eq!(bits(&logged.patch), bits(patch));
+        assert_eq!(logged.patch.occupancy_percent(), patch.occupancy_percent());
+    }
+    assert_eq!(read[0].patch.occupancy_percent(), Some(&bytes[..]));
 }
 
 async fn a_failed_changeset_writes_nothing(db: TestDb) {

@@ -311,7 +311,7 @@ pub(super) fn patch_from_row(row: &impl Columns, frame: &GridFrame) -> Result<(u
     }
     let stored: Vec<u8> = at.get(row, "cells")?;
     let format: i64 = at.get(row, "cells_format")?;
-    let patch = Patch::from_stored(rect, decode_cells(&at, stored, format, rect.area())?).map_err(|e| at.bad(e))?;
+    let patch = decode_cells(&at, rect, stored, format)?;
     let logged =
         LoggedPatch { robot_id: at.id_column(row, "robot_id")?, seq: at.count(row, "seq")?, patch: Arc::new(patch) };
     Ok((at.id_column(row, "id")?, logged))
@@ -483,37 +483,59 @@ pub(super) fn segmentation_from_row(row: &impl Columns, frame: GridFrame) -> Res
 /// `map_patches.cells_format`: little-endian f32 log-odds per cell, NaN for unknown.
 const CELLS_RAW: i64 = 0;
 /// `map_patches.cells_format`: [`CELLS_RAW`]'s bytes as one LZ4 block.
-pub(super) const CELLS_LZ4: i64 = 1;
+const CELLS_LZ4: i64 = 1;
+/// `map_patches.cells_format`: the occupancy bytes the patch came as (ROS's
+/// 0 to 100, 255 for unknown; see [`Patch::occupancy_percent`]) as one LZ4
+/// block: a quarter of [`CELLS_RAW`] before compression, and they make the
+/// same log-odds again.
+const CELLS_PERCENT_LZ4: i64 = 2;
 
-/// A patch's cells as written now ([`CELLS_LZ4`]).
-pub(super) fn encode_cells(patch: &Patch) -> Vec<u8> {
+/// A patch's cells as written now, and their `cells_format`: the bytes the
+/// patch came as when it came as bytes ([`CELLS_PERCENT_LZ4`]), its
+/// log-odds otherwise ([`CELLS_LZ4`]).
+pub(super) fn encode_cells(patch: &Patch) -> (Vec<u8>, i64) {
+    if let Some(occupancy) = patch.occupancy_percent() {
+        return (lz4_flex::block::compress(occupancy), CELLS_PERCENT_LZ4);
+    }
     // Sized once and filled value by value: collecting a flat_map of the
     // four bytes grew the vector as it went (1 % of a map update's CPU).
     let mut raw = Vec::with_capacity(patch.log_odds().len() * 4);
     for v in patch.log_odds() {
         raw.extend_from_slice(&v.to_le_bytes());
     }
-    lz4_flex::block::compress(&raw)
+    (lz4_flex::block::compress(&raw), CELLS_LZ4)
 }
 
-/// The log-odds of a patch's `count` cells from `stored` bytes in `format`.
-fn decode_cells(at: &At, stored: Vec<u8>, format: i64, count: u64) -> Result<Vec<f32>, StoreError> {
-    let expected = usize::try_from(count * 4).map_err(|_| at.bad(format!("{count} cells do not fit in memory")))?;
+/// The patch over `rect` whose cells are `stored` bytes in `format`.
+fn decode_cells(at: &At, rect: CellRect, stored: Vec<u8>, format: i64) -> Result<Patch, StoreError> {
+    let count = rect.area();
+    let bytes_per_cell = if format == CELLS_PERCENT_LZ4 { 1 } else { 4 };
+    let expected =
+        usize::try_from(count * bytes_per_cell).map_err(|_| at.bad(format!("{count} cells do not fit in memory")))?;
     let raw = match format {
         CELLS_RAW => stored,
-        CELLS_LZ4 => {
+        CELLS_LZ4 | CELLS_PERCENT_LZ4 => {
             let mut raw = vec![0; expected];
             let written =
                 lz4_flex::block::decompress_into(&stored, &mut raw).map_err(|e| at.bad(format!("cells: {e}")))?;
             raw.truncate(written);
             raw
         }
-        other => return Err(at.bad(format!("cells_format {other} is none of {CELLS_RAW} (raw) or {CELLS_LZ4} (LZ4)"))),
+        other => {
+            return Err(at.bad(format!(
+                "cells_format {other} is none of {CELLS_RAW} (raw), {CELLS_LZ4} (LZ4) or {CELLS_PERCENT_LZ4} (occupancy bytes, LZ4)"
+            )));
+        }
     };
     if raw.len() != expected {
-        return Err(at.bad(format!("cells holds {} bytes, not 4 per cell of {count} cells", raw.len())));
+        return Err(at.bad(format!("cells holds {} bytes, not {bytes_per_cell} per cell of {count} cells", raw.len())));
     }
-    Ok(raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+    let patch = if format == CELLS_PERCENT_LZ4 {
+        Patch::from_occupancy_percent(rect, &raw)
+    } else {
+        Patch::from_stored(rect, raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+    };
+    patch.map_err(|e| at.bad(e))
 }
 
 /// An identity (1 and up) in column `column` of a row of `table`.

@@ -3,7 +3,7 @@
 
 use std::collections::BTreeMap;
 
-use super::rows::{CELLS_LZ4, critical_points_json, encode_cells, leftovers_json, segments_json};
+use super::rows::{critical_points_json, encode_cells, leftovers_json, segments_json};
 use super::statement::{Statement, Transaction};
 use crate::domain::{MissionId, RobotId, RobotRecord, TaskId, TaskState, Timestamp, Transition};
 use crate::store::{Changeset, Fence, LoggedPatch, MapSnapshot, MissionCounters, StoreError};
@@ -96,6 +96,7 @@ async fn write_patches(tx: &mut impl Transaction, patches: &[(&LoggedPatch, Time
     ));
     for (logged, now) in patches {
         let rect = logged.patch.rect();
+        let (cells, format) = encode_cells(&logged.patch);
         insert = insert
             .int(logged.robot_id as i64)
             .int(logged.robot_id as i64)
@@ -104,8 +105,8 @@ async fn write_patches(tx: &mut impl Transaction, patches: &[(&LoggedPatch, Time
             .int(i64::from(rect.y))
             .int(i64::from(rect.width))
             .int(i64::from(rect.height))
-            .bytes(encode_cells(&logged.patch))
-            .int(CELLS_LZ4)
+            .bytes(cells)
+            .int(format)
             .int(now.millis());
     }
     tx.execute(insert).await?;

@@ -66,6 +66,13 @@ async fn corrupt_rows_are_refused_naming_table_row_and_column() {
         ("UPDATE map_patches SET cells_format = 7", "map_patches row 2: cells_format 7"),
         ("UPDATE map_patches SET cells_format = 0, cells = x'00'", "map_patches row 2: cells holds 1 bytes"),
         ("UPDATE map_patches SET cells_format = 0, cells = x'0000807f0000807f'", "map_patches row 2"),
+        // Two cells as occupancy bytes, one LZ4 block of literals each: one
+        // byte short, and a byte that is no percentage.
+        ("UPDATE map_patches SET cells_format = 2, cells = x'1005'", "map_patches row 2: cells holds 1 bytes"),
+        (
+            "UPDATE map_patches SET cells_format = 2, cells = x'200565'",
+            "map_patches row 2: occupancy byte 1 of the patch is 101",
+        ),
         ("UPDATE map_snapshots SET state = x'00'", "map_snapshots: the snapshot"),
         ("UPDATE map_snapshots SET raw_bytes = 1000000000000", "map_snapshots: the snapshot claims"),
         ("UPDATE map_snapshots SET folded = -1", "map_snapshots row 1: folded"),
