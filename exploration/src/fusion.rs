@@ -300,6 +300,22 @@ pub struct MapFusion {
     grid: OccupancyGrid,
 }
 
+/// `row`, starting at column `x`, cut where it crosses from one tile into
+/// the next.
+fn runs_within_tiles(row: &[f32], x: usize) -> impl Iterator<Item = &[f32]> {
+    let mut rest = row;
+    let mut x = x;
+    std::iter::from_fn(move || {
+        if rest.is_empty() {
+            return None;
+        }
+        let (run, tail) = rest.split_at((TILE - (x & (TILE - 1))).min(rest.len()));
+        rest = tail;
+        x += run.len();
+        Some(run)
+    })
+}
+
 impl MapFusion {
     /// An empty fusion: every cell unknown.
     pub fn new(frame: GridFrame) -> Self {
@@ -334,46 +350,49 @@ impl MapFusion {
         let (tiles_x, tiles_y) = (self.tiles_x, self.tiles_y);
         let layer = self.layers.entry(layer).or_insert_with(|| Layer { tiles: vec![None; tiles_x * tiles_y] });
         let rect = patch.rect();
-        let width = self.frame.width as usize;
+        let (width, patch_width) = (self.frame.width as usize, rect.width as usize);
         let mut change = FusionChange::default();
         let mut changed_rect: Option<CellRect> = None;
-        let mut values = patch.log_odds().iter();
-        for y in rect.y..rect.y_end() {
-            for x in rect.x..rect.x_end() {
-                let Some(&new) = values.next() else { unreachable!("a validated patch has one value per cell") };
-                if new.is_nan() {
-                    continue;
-                }
-                let (x, y) = (x as usize, y as usize);
+        for (y, row) in (rect.y as usize..).zip(patch.log_odds().chunks_exact(patch_width)) {
+            // Row by row, one tile's run of cells at a time: the tile is
+            // looked up once per run, not per cell.
+            let mut x = rect.x as usize;
+            for run in runs_within_tiles(row, x) {
                 let tile_index = (y >> TILE_SHIFT) * tiles_x + (x >> TILE_SHIFT);
-                let tile =
-                    layer.tiles[tile_index].get_or_insert_with(|| vec![f32::NAN; TILE * TILE].into_boxed_slice());
-                let slot = &mut tile[(y & (TILE - 1)) * TILE + (x & (TILE - 1))];
-                let old = *slot;
-                if old == new {
+                let first = (y & (TILE - 1)) * TILE + (x & (TILE - 1));
+                let (run_x, tile) = (x, &mut layer.tiles[tile_index]);
+                x += run.len();
+                // A tile is made only for a known cell.
+                if tile.is_none() && run.iter().all(|v| v.is_nan()) {
                     continue;
                 }
-                *slot = new;
-                let i = y * width + x;
-                if old.is_nan() {
-                    self.observers[i] += 1;
-                    self.sum[i] += new;
-                } else {
-                    self.sum[i] += new - old;
-                }
-                let fused = fused_percent(self.sum[i]);
-                let before = self.grid.value_at(i);
-                if before != fused {
-                    let cell = crate::grid::Cell::new(x as i32, y as i32);
-                    self.grid.set(cell, fused);
-                    change.changed_cells += 1;
-                    if before == UNKNOWN {
-                        change.newly_known += 1;
+                let tile = tile.get_or_insert_with(|| vec![f32::NAN; TILE * TILE].into_boxed_slice());
+                for (k, (slot, &new)) in tile[first..first + run.len()].iter_mut().zip(run).enumerate() {
+                    if new.is_nan() || *slot == new {
+                        continue;
                     }
-                    changed_rect = Some(match changed_rect {
-                        Some(r) => r.including(cell),
-                        None => CellRect::new(cell.x, cell.y, 1, 1),
-                    });
+                    let old = std::mem::replace(slot, new);
+                    let i = y * width + run_x + k;
+                    if old.is_nan() {
+                        self.observers[i] += 1;
+                        self.sum[i] += new;
+                    } else {
+                        self.sum[i] += new - old;
+                    }
+                    let fused = fused_percent(self.sum[i]);
+                    let before = self.grid.value_at(i);
+                    if before != fused {
+                        let cell = crate::grid::Cell::new((run_x + k) as i32, y as i32);
+                        self.grid.set(cell, fused);
+                        change.changed_cells += 1;
+                        if before == UNKNOWN {
+                            change.newly_known += 1;
+                        }
+                        changed_rect = Some(match changed_rect {
+                            Some(r) => r.including(cell),
+                            None => CellRect::new(cell.x, cell.y, 1, 1),
+                        });
+                    }
                 }
             }
         }
@@ -777,6 +796,103 @@ mod tests {
                 proptest::prop_assert_eq!(rebuilt.apply(layer, &patch).unwrap(), original.apply(layer, &patch).unwrap());
             }
             proptest::prop_assert_eq!(state(&rebuilt), state(&original));
+        }
+    }
+
+    /// Fusion written out cell by cell over a dense copy of each layer: the
+    /// model [`MapFusion::apply`]'s runs within tiles must agree with.
+    struct CellByCell {
+        width: usize,
+        layers: BTreeMap<LayerId, Vec<f32>>,
+        sum: Vec<f32>,
+        observers: Vec<u16>,
+        grid: Vec<u8>,
+        /// The tiles each layer has had a known cell in.
+        tiles: BTreeMap<LayerId, std::collections::BTreeSet<(usize, usize)>>,
+    }
+
+    impl CellByCell {
+        fn new(frame: &GridFrame) -> Self {
+            let cells = frame.len();
+            Self {
+                width: frame.width as usize,
+                layers: BTreeMap::new(),
+                sum: vec![0.0; cells],
+                observers: vec![0; cells],
+                grid: vec![UNKNOWN; cells],
+                tiles: BTreeMap::new(),
+            }
+        }
+
+        fn apply(&mut self, layer: LayerId, patch: &Patch) -> FusionChange {
+            let cells = self.sum.len();
+            let values = self.layers.entry(layer).or_insert_with(|| vec![f32::NAN; cells]);
+            let rect = patch.rect();
+            let mut change = FusionChange::default();
+            let mut new_values = patch.log_odds().iter();
+            for y in rect.y..rect.y_end() {
+                for x in rect.x..rect.x_end() {
+                    let new = *new_values.next().unwrap();
+                    let (x, y) = (x as usize, y as usize);
+                    let i = y * self.width + x;
+                    if new.is_nan() {
+                        continue;
+                    }
+                    self.tiles.entry(layer).or_default().insert((x / TILE, y / TILE));
+                    let old = values[i];
+                    if old == new {
+                        continue;
+                    }
+                    values[i] = new;
+                    if old.is_nan() {
+                        self.observers[i] += 1;
+                        self.sum[i] += new;
+                    } else {
+                        self.sum[i] += new - old;
+                    }
+                    let fused = fused_percent(self.sum[i]);
+                    if self.grid[i] != fused {
+                        let cell = Cell::new(x as i32, y as i32);
+                        change.changed_cells += 1;
+                        change.newly_known += u64::from(self.grid[i] == UNKNOWN);
+                        change.changed =
+                            Some(change.changed.map_or(CellRect::new(cell.x, cell.y, 1, 1), |r| r.including(cell)));
+                        self.grid[i] = fused;
+                    }
+                }
+            }
+            change
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(crate::testing::seeded_proptest(64))]
+        /// Applying a patch a tile's run at a time changes what applying it
+        /// cell by cell does, bit for bit, and makes a layer's tile only
+        /// where the layer was sent a known cell.
+        #[test]
+        fn runs_within_tiles_fuse_as_cell_by_cell(seed in 0u64..u64::MAX, patches in 1usize..80) {
+            let frame = frame();
+            let mut rng = crate::rng::SplitMix64::new(seed);
+            let (mut fusion, mut model) = (MapFusion::new(frame), CellByCell::new(&frame));
+            for _ in 0..patches {
+                let (layer, patch) = random_patch(&mut rng, &frame);
+                proptest::prop_assert_eq!(fusion.apply(layer, &patch).unwrap(), model.apply(layer, &patch));
+            }
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            proptest::prop_assert_eq!(bits(&fusion.sum), bits(&model.sum));
+            proptest::prop_assert_eq!(&fusion.observers, &model.observers);
+            proptest::prop_assert_eq!(fusion.grid().cells(), &model.grid[..]);
+            for (id, layer) in &fusion.layers {
+                let made: std::collections::BTreeSet<(usize, usize)> = layer
+                    .tiles
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, t)| t.is_some())
+                    .map(|(t, _)| (t % fusion.tiles_x, t / fusion.tiles_x))
+                    .collect();
+                proptest::prop_assert_eq!(made, model.tiles.get(id).cloned().unwrap_or_default());
+            }
         }
     }
 
