@@ -12,7 +12,9 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use client_sim::RunConfig;
-use common::{binary, bundled_map, create_mission, patch, register, registration, update, wait_until_serving};
+use common::{
+    binary, bundled_map, create_mission, mission_request, patch, register, registration, update, wait_until_serving,
+};
 use exploration_proto::v1::fleet_client::FleetClient;
 use exploration_proto::v1::missions_client::MissionsClient;
 use sqlx::Connection;
@@ -254,61 +256,50 @@ async fn a_replica_paused_past_its_lease_cannot_write_and_gives_the_mission_up()
     assert_eq!(next.applied_seq, 3);
 }
 
-/// Another replica's lease keeper may claim a new mission in the moment
-/// between its creation and its creator's claim: under load in CI the
-/// creator then answered CreateMission with INTERNAL, for a mission it had
-/// made. Here a trigger is that other keeper, at its quickest: each new
-/// mission is claimed by "elsewhere" as it is inserted. The creation is
-/// answered with the mission, and its robots are sent to the holder.
+/// A new mission and its lease are written in one transaction, so no
+/// other replica's lease keeper ever sees the mission unclaimed (under load
+/// in CI one did, between the creation and the creator's claim, and took
+/// it). Triggers note the transaction that inserts each.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_mission_another_replica_claims_as_it_is_created_is_created_all_the_same() {
-    let elsewhere = "http://127.0.0.1:9";
-    let trigger = "CREATE FUNCTION claimed_elsewhere() RETURNS trigger AS $$ BEGIN
-             INSERT INTO mission_leases (mission_id, owner, address, token, expires_at)
-             VALUES (NEW.id, 'elsewhere', 'http://127.0.0.1:9', 1, 9000000000000);
+async fn a_mission_is_created_with_its_lease_in_one_transaction() {
+    let trigger = "CREATE TABLE inserted_by (what TEXT, xact xid8);
+         CREATE FUNCTION note_transaction() RETURNS trigger AS $$ BEGIN
+             INSERT INTO inserted_by VALUES (TG_TABLE_NAME, pg_current_xact_id());
              RETURN NEW;
          END $$ LANGUAGE plpgsql;
-         CREATE TRIGGER claimed_elsewhere AFTER INSERT ON missions FOR EACH ROW EXECUTE FUNCTION claimed_elsewhere();";
-    let Some((mut db, _a, channel)) = lone_replica_with("replicas_claimed_at_once", trigger).await else { return };
+         CREATE TRIGGER note_mission AFTER INSERT ON missions FOR EACH ROW EXECUTE FUNCTION note_transaction();
+         CREATE TRIGGER note_lease AFTER INSERT ON mission_leases FOR EACH ROW EXECUTE FUNCTION note_transaction();";
+    let Some((mut db, _a, channel)) = lone_replica_with("replicas_created_claimed", trigger).await else { return };
     let mission = create_mission(&mut MissionsClient::new(channel.clone()), 40, 40, "nearest").await;
-    assert_eq!(holder(&mut db, mission.id as i64).await, Some(("elsewhere".to_owned(), 1)));
-    let missions: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM missions").fetch_one(&mut db).await.unwrap();
-    assert_eq!(missions, 1);
-    let pointed =
-        FleetClient::new(channel).register_robot(registration(mission.id, "r", 0.55, 0.55)).await.unwrap_err();
-    assert_eq!(pointed.code(), Code::Unavailable, "{pointed:?}");
-    assert_eq!(pointed.metadata().get("exploration-owner").unwrap(), elsewhere);
+    let transactions: Vec<(String, String)> =
+        sqlx::query_as("SELECT what, xact::text FROM inserted_by ORDER BY what").fetch_all(&mut db).await.unwrap();
+    assert_eq!(transactions.len(), 2, "{transactions:?}");
+    assert_eq!(transactions[0].1, transactions[1].1, "the mission and its lease in two transactions: {transactions:?}");
+    assert_eq!(holder(&mut db, mission.id as i64).await, Some(("a".to_owned(), 1)));
+    // Held at once: its first robot is not told to retry.
+    FleetClient::new(channel).register_robot(registration(mission.id, "r", 0.55, 0.55)).await.unwrap();
 }
 
-/// A claim that fails in the store after the mission is stored: the
-/// mission is created all the same (an error would have the caller create
-/// it again), nobody holds it, and a lease keeper claims it once claims
-/// work again; its robot is told to retry until then.
+/// A mission whose lease cannot be written is not created either: the
+/// caller is told, and may create it again without making two.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_mission_whose_claim_fails_is_created_once_and_claimed_when_asked_for() {
+async fn a_mission_whose_lease_cannot_be_written_is_not_created() {
     let trigger = "CREATE FUNCTION no_claims() RETURNS trigger AS $$ BEGIN
              RAISE EXCEPTION 'leases refused by the test';
          END $$ LANGUAGE plpgsql;
          CREATE TRIGGER no_claims BEFORE INSERT ON mission_leases FOR EACH ROW EXECUTE FUNCTION no_claims();";
     let Some((mut db, _a, channel)) = lone_replica_with("replicas_claim_fails", trigger).await else { return };
-    let mission = create_mission(&mut MissionsClient::new(channel.clone()), 40, 40, "nearest").await;
-    let missions: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM missions").fetch_one(&mut db).await.unwrap();
-    assert_eq!(missions, 1);
-    assert_eq!(holder(&mut db, mission.id as i64).await, None);
+    let mut missions = MissionsClient::new(channel.clone());
+    let refused = missions.create_mission(mission_request(40, 40, "nearest")).await.unwrap_err();
+    assert_ne!(refused.code(), Code::Ok);
+    let stored: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM missions").fetch_one(&mut db).await.unwrap();
+    assert_eq!(stored, 0, "a mission was stored without its lease");
     sqlx::raw_sql("DROP TRIGGER no_claims ON mission_leases").execute(&mut db).await.unwrap();
-    // As a robot would: UNAVAILABLE ("changing hands") until a claim holds.
-    let mut fleet = FleetClient::new(channel);
-    let start = Instant::now();
-    loop {
-        match fleet.register_robot(registration(mission.id, "r", 0.55, 0.55)).await {
-            Ok(_) => break,
-            Err(status) if status.code() == Code::Unavailable && start.elapsed() < Duration::from_secs(30) => {
-                tokio::time::sleep(Duration::from_millis(100)).await
-            }
-            Err(status) => panic!("the mission was never claimed: {status:?}"),
-        }
-    }
-    assert_eq!(holder(&mut db, mission.id as i64).await.map(|(owner, _)| owner).as_deref(), Some("a"));
+    let mission = create_mission(&mut missions, 40, 40, "nearest").await;
+    let stored: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM missions").fetch_one(&mut db).await.unwrap();
+    assert_eq!(stored, 1);
+    assert_eq!(holder(&mut db, mission.id as i64).await, Some(("a".to_owned(), 1)));
+    FleetClient::new(channel).register_robot(registration(mission.id, "r", 0.55, 0.55)).await.unwrap();
 }
 
 /// One replica, "a", serving a fresh database named `name` on which `sql`

@@ -399,13 +399,24 @@ impl Executive {
         // Reserved before the store is asked, so that simultaneous calls
         // cannot all pass the check; given back if the mission is not made.
         self.usage.reserve(cells, &self.settings)?;
-        // A replica's lease keeper must not claim the new mission before it does.
+        // Held until the mission is in this executive's map: the lease
+        // keeper must not hand it on before it is there to be given up.
         let _claiming = match &self.ownership {
             Some(ownership) => Some(ownership.claiming().await),
             None => None,
         };
-        let record = match self.store.create_mission(&spec, Timestamp::now()).await {
-            Ok(record) => record,
+        let now = Timestamp::now();
+        let created = match &self.ownership {
+            // A replica's mission is created with its lease, in one
+            // transaction: no other replica ever sees it unclaimed.
+            Some(ownership) => {
+                let ReplicaSettings { claimant, lease, .. } = &ownership.settings;
+                self.store.create_claimed_mission(&spec, now, claimant, *lease).await.map(|(m, l)| (m, Some(l)))
+            }
+            None => self.store.create_mission(&spec, now).await.map(|m| (m, None)),
+        };
+        let (record, lease) = match created {
+            Ok(created) => created,
             Err(e) => {
                 self.usage.release(cells);
                 return Err(e.into());
@@ -413,15 +424,8 @@ impl Executive {
         };
         tracing::info!(mission = record.id, policy = record.spec.policy.name(), cells, "mission created");
         let mut mission = Mission::new(record.clone(), self.settings.clock.now());
-        let held_here = match &self.ownership {
-            Some(ownership) => self.claim_new(ownership, &mut mission).await,
-            None => true,
-        };
-        if !held_here {
-            self.usage.release(cells);
-            // Made, and held elsewhere or by nobody yet: its robots are sent
-            // to the holder, or told to retry shortly.
-            return Ok(MissionSummary::stored(record));
+        if let (Some(ownership), Some(lease)) = (&self.ownership, lease) {
+            ownership.hold_new(&mut mission, &lease);
         }
         let summary = Self::summary(&mission);
         let cell = Arc::new(MissionCell::new(mission));

@@ -96,12 +96,23 @@ impl Ownership {
         }
     }
 
-    /// The right to claim: held from a claim until its mission is in the
-    /// executive's map, so that the lease keeper never claims a mission
-    /// this executive is claiming itself (a second claim would fence the
-    /// first).
+    /// The right to claim: held from a claim (or the creation of a mission)
+    /// until its mission is in the executive's map, and while the lease
+    /// keeper hands missions on. So the keeper never claims a mission this
+    /// executive is claiming itself (a second claim would fence the first),
+    /// and never hands on one not yet in the map (it would be put there
+    /// after, and acted for without a lease).
     pub(super) async fn claiming(&self) -> tokio::sync::MutexGuard<'_, ()> {
         self.claiming.lock().await
+    }
+
+    /// Holds a mission this executive just created with its `lease` (see
+    /// [`crate::store::Store::create_claimed_mission`]); the caller holds
+    /// [`Self::claiming`] until the mission is in the executive's map.
+    pub(super) fn hold_new(&self, mission: &mut Mission, lease: &Lease) {
+        let id = mission.record().id;
+        mission.set_fence(Fence { mission_id: id, token: lease.token });
+        self.held().insert(id, lease.token);
     }
 
     fn held(&self) -> std::sync::MutexGuard<'_, BTreeMap<MissionId, u64>> {
@@ -194,32 +205,6 @@ impl Executive {
         Ok(cell)
     }
 
-    /// A mission this executive created: claimed at once (the caller holds
-    /// [`Ownership::claiming`] until the mission is in its map). Whether
-    /// this replica holds it. It may not: another replica's lease keeper may
-    /// have seen the new mission unclaimed and taken it first, or the claim
-    /// failed in the store. Either way the mission is stored and created all
-    /// the same (an error would have its caller create it twice); unheld, a
-    /// lease keeper claims it at its next round.
-    pub(super) async fn claim_new(&self, ownership: &Ownership, mission: &mut Mission) -> bool {
-        let id = mission.record().id;
-        let ReplicaSettings { claimant, lease, grace } = &ownership.settings;
-        let lease = match self.store.claim(id, claimant, Timestamp::now(), *lease, *grace).await {
-            Ok(Some(lease)) => lease,
-            Ok(None) => {
-                tracing::info!(mission = id, "mission created; another replica claimed it first");
-                return false;
-            }
-            Err(e) => {
-                tracing::warn!(mission = id, error = %e, "mission created; claiming it failed, left to the lease keepers");
-                return false;
-            }
-        };
-        mission.set_fence(Fence { mission_id: id, token: lease.token });
-        ownership.held().insert(id, lease.token);
-        true
-    }
-
     /// Lets a mission go: another replica holds it now. Its planner stops
     /// and, once the requests under way end, its robots' streams close, so
     /// that they reconnect and are pointed to the new holder.
@@ -282,9 +267,14 @@ impl Executive {
         for fence in held.iter().filter(|f| !renewed.contains(&f.mission_id)) {
             self.give_up(ownership, fence.mission_id);
         }
-        let share = self.store.announce(&ownership.settings.claimant, Timestamp::now(), period).await?;
-        ownership.fair.store(share.fair(), Ordering::Relaxed);
-        self.hand_on_excess(ownership, share.fair()).await;
+        {
+            // No mission is created or claimed here between the count of the
+            // share and the handing on: one would be handed on as excess.
+            let _no_claims_meanwhile = ownership.claiming().await;
+            let share = self.store.announce(&ownership.settings.claimant, Timestamp::now(), period).await?;
+            ownership.fair.store(share.fair(), Ordering::Relaxed);
+            self.hand_on_excess(ownership, share.fair()).await;
+        }
         let unclaimed = self.store.unclaimed(Timestamp::now(), ownership.settings.grace).await?;
         ownership.note_unclaimed(&unclaimed);
         for id in unclaimed {

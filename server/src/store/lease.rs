@@ -2,8 +2,9 @@
 //!
 //! Replicas sharing one database divide the missions between them through
 //! leases in the database (`mission_leases`), not through a cluster of
-//! their own. A replica that creates a mission, or finds one whose lease ran
-//! out more than a grace period ago, claims it; while it acts for the
+//! their own. A replica creates a mission with its lease, in one
+//! transaction, and claims one whose lease ran out more than a grace
+//! period ago; while it acts for the
 //! mission it renews the lease; a replica that stops renewing (it died, it
 //! was paused, it lost the database) loses its missions to whoever claims
 //! them next, who loads them from the database and carries on.

@@ -464,6 +464,18 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// Creates a mission and returns it with its new identity.
     async fn create_mission(&self, spec: &MissionSpec, now: Timestamp) -> Result<MissionRecord, StoreError>;
 
+    /// Creates a mission already claimed by `claimant` until `now + period`
+    /// (fencing token 1), in one transaction: no replica ever sees it
+    /// unclaimed, and a mission whose lease cannot be written is not made
+    /// either.
+    async fn create_claimed_mission(
+        &self,
+        spec: &MissionSpec,
+        now: Timestamp,
+        claimant: &Claimant,
+        period: std::time::Duration,
+    ) -> Result<(MissionRecord, Lease), StoreError>;
+
     /// Every mission, oldest first.
     async fn missions(&self) -> Result<Vec<MissionRecord>, StoreError>;
 

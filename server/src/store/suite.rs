@@ -83,6 +83,7 @@ on_both_engines!(
     a_folded_patch_log_restores_the_same_map,
     patches_come_back_bit_for_bit_whichever_way_they_came,
     a_lease_passes_on_only_once_it_ran_out_and_fences_its_old_holder,
+    a_mission_created_with_its_lease_is_never_unclaimed,
     replicas_are_counted_while_their_announcements_last,
 );
 
@@ -548,6 +549,27 @@ async fn a_folded_patch_log_restores_the_same_map(db: TestDb) {
 /// token; from then on the old holder can write nothing for the mission,
 /// however its changeset comes, while changesets of other missions in the
 /// same group are written.
+/// A replica's new mission is stored with its lease: token 1, held by its
+/// creator, never listed as unclaimed, and not claimable by another.
+async fn a_mission_created_with_its_lease_is_never_unclaimed(db: TestDb) {
+    let store = db.open().await;
+    let (a, b) = (
+        Claimant { id: "a".into(), address: "http://a:1".into() },
+        Claimant { id: "b".into(), address: "http://b:1".into() },
+    );
+    let period = Duration::from_secs(5);
+    let (mission, lease) = store.create_claimed_mission(&spec(), Timestamp(1_000), &a, period).await.unwrap();
+    assert_eq!(mission.spec, spec());
+    assert_eq!(
+        (lease.mission_id, lease.owner.as_str(), lease.address.as_str(), lease.token, lease.expires_at),
+        (mission.id, "a", "http://a:1", 1, Timestamp(6_000))
+    );
+    assert_eq!(store.lease(mission.id).await.unwrap(), Some(lease));
+    assert!(store.unclaimed(Timestamp(1_000), Duration::ZERO).await.unwrap().is_empty());
+    assert_eq!(store.claim(mission.id, &b, Timestamp(2_000), period, Duration::ZERO).await.unwrap(), None);
+    assert_eq!(store.missions().await.unwrap(), vec![mission]);
+}
+
 async fn a_lease_passes_on_only_once_it_ran_out_and_fences_its_old_holder(db: TestDb) {
     let store = db.open().await;
     let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();

@@ -160,21 +160,22 @@ pub async fn create_mission(
     height: u32,
     policy: &str,
 ) -> pb::Mission {
-    missions
-        .create_mission(pb::CreateMissionRequest {
-            name: "test".into(),
-            frame: Some(frame(width, height)),
-            policy: Some(pb::PolicySpec { name: policy.into(), params: Default::default() }),
-            replan: None,
-            scoped_by_communication: false,
-            // Each request is answered after the plan it makes due, so that
-            // tests read it at once; tests/planner.rs covers the other mode.
-            lockstep: true,
-            ..Default::default()
-        })
-        .await
-        .unwrap()
-        .into_inner()
+    missions.create_mission(mission_request(width, height, policy)).await.unwrap().into_inner()
+}
+
+/// A request for a mission of `width` × `height` cells under `policy`.
+pub fn mission_request(width: u32, height: u32, policy: &str) -> pb::CreateMissionRequest {
+    pb::CreateMissionRequest {
+        name: "test".into(),
+        frame: Some(frame(width, height)),
+        policy: Some(pb::PolicySpec { name: policy.into(), params: Default::default() }),
+        replan: None,
+        scoped_by_communication: false,
+        // Each request is answered after the plan it makes due, so that
+        // tests read it at once; tests/planner.rs covers the other mode.
+        lockstep: true,
+        ..Default::default()
+    }
 }
 
 /// Registration of a point-sized robot with a 2 m sensor at (x, y).

@@ -21,6 +21,19 @@ fn claimable_before(now: Timestamp, grace: Duration) -> i64 {
     now.millis().saturating_sub(i64::try_from(grace.as_millis()).unwrap_or(i64::MAX))
 }
 
+/// The first lease of a mission just created, for `claimant` until
+/// `now + period`, with fencing token 1; returns the lease's row.
+pub(super) fn first_lease(mission_id: MissionId, claimant: &Claimant, now: Timestamp, period: Duration) -> Statement {
+    Statement::new(
+        "INSERT INTO mission_leases (mission_id, owner, address, token, expires_at) VALUES ($1, $2, $3, 1, $4)
+         RETURNING *",
+    )
+    .int(mission_id as i64)
+    .text(&claimant.id)
+    .text(&claimant.address)
+    .int(until(now, period))
+}
+
 impl<B: Backend> SqlStore<B> {
     pub(super) async fn read_lease(&self, mission_id: MissionId) -> Result<Option<Lease>, StoreError> {
         let select = Statement::new("SELECT * FROM mission_leases WHERE mission_id = $1");

@@ -144,42 +144,61 @@ fn filtered(sql: &'static str, filter: &TaskFilter) -> Statement {
         .int(i64::from(filter.limit))
 }
 
+/// The statement that stores a new mission from `spec` and returns its row.
+fn insert_mission(spec: &MissionSpec, now: Timestamp) -> Result<Statement, StoreError> {
+    let params: BTreeMap<&str, f64> = spec.policy.params().clone();
+    let params = serde_json::to_string(&params).map_err(|e| StoreError::Corrupt(e.to_string()))?;
+    let insert = Statement::new(
+        "INSERT INTO missions (name, resolution, origin_x, origin_y, width, height, policy, policy_params,
+                               replan_distance_m, replan_interval_s, replan_frontier_change, state,
+                               created_at, updated_at, scoped_by_communication, lease_s, stall_s,
+                               rendezvous_x, rendezvous_y, lockstep)
+         VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, 'active', $12, $12, $13, $14, $15, $16, $17,
+                 $18)
+         RETURNING *",
+    )
+    .text(&spec.name)
+    .real(spec.frame.resolution)
+    .real(spec.frame.origin.x)
+    .real(spec.frame.origin.y)
+    .int(i64::from(spec.frame.width))
+    .int(i64::from(spec.frame.height))
+    .text(spec.policy.name())
+    .text(&params)
+    .real(spec.replan.distance_m)
+    .real(spec.replan.interval.as_secs_f64())
+    .real(spec.replan.frontier_change)
+    .int(now.millis())
+    .int(i64::from(spec.scoped_by_communication))
+    .real(spec.lifecycle.lease.as_secs_f64())
+    .real(spec.lifecycle.stall.as_secs_f64())
+    .real(spec.lifecycle.rendezvous.map(|p| p.x))
+    .real(spec.lifecycle.rendezvous.map(|p| p.y))
+    .int(i64::from(spec.lockstep));
+    Ok(insert)
+}
+
 #[async_trait]
 impl<B: Backend> Store for SqlStore<B> {
     async fn create_mission(&self, spec: &MissionSpec, now: Timestamp) -> Result<MissionRecord, StoreError> {
-        let params: BTreeMap<&str, f64> = spec.policy.params().clone();
-        let params = serde_json::to_string(&params).map_err(|e| StoreError::Corrupt(e.to_string()))?;
-        let insert = Statement::new(
-            "INSERT INTO missions (name, resolution, origin_x, origin_y, width, height, policy, policy_params,
-                                   replan_distance_m, replan_interval_s, replan_frontier_change, state,
-                                   created_at, updated_at, scoped_by_communication, lease_s, stall_s,
-                                   rendezvous_x, rendezvous_y, lockstep)
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, 'active', $12, $12, $13, $14, $15, $16, $17,
-                     $18)
-             RETURNING *",
-        )
-        .text(&spec.name)
-        .real(spec.frame.resolution)
-        .real(spec.frame.origin.x)
-        .real(spec.frame.origin.y)
-        .int(i64::from(spec.frame.width))
-        .int(i64::from(spec.frame.height))
-        .text(spec.policy.name())
-        .text(&params)
-        .real(spec.replan.distance_m)
-        .real(spec.replan.interval.as_secs_f64())
-        .real(spec.replan.frontier_change)
-        .int(now.millis())
-        .int(i64::from(spec.scoped_by_communication))
-        .real(spec.lifecycle.lease.as_secs_f64())
-        .real(spec.lifecycle.stall.as_secs_f64())
-        .real(spec.lifecycle.rendezvous.map(|p| p.x))
-        .real(spec.lifecycle.rendezvous.map(|p| p.y))
-        .int(i64::from(spec.lockstep));
         let mut tx = self.backend.begin_write().await?;
-        let row = tx.fetch_one(insert).await?;
+        let row = tx.fetch_one(insert_mission(spec, now)?).await?;
         tx.commit().await?;
         rows::mission_from_row(&row)
+    }
+
+    async fn create_claimed_mission(
+        &self,
+        spec: &MissionSpec,
+        now: Timestamp,
+        claimant: &Claimant,
+        period: Duration,
+    ) -> Result<(MissionRecord, Lease), StoreError> {
+        let mut tx = self.backend.begin_write().await?;
+        let mission = rows::mission_from_row(&tx.fetch_one(insert_mission(spec, now)?).await?)?;
+        let lease = rows::lease_from_row(&tx.fetch_one(leases::first_lease(mission.id, claimant, now, period)).await?)?;
+        tx.commit().await?;
+        Ok((mission, lease))
     }
 
     async fn missions(&self) -> Result<Vec<MissionRecord>, StoreError> {
