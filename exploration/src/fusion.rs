@@ -797,6 +797,34 @@ mod tests {
             }
             proptest::prop_assert_eq!(state(&rebuilt), state(&original));
         }
+
+        /// Applying a patch a tile's run at a time does what applying it
+        /// cell by cell does, bit for bit, and makes a layer's tile only
+        /// where the layer was sent a known cell.
+        #[test]
+        fn runs_within_tiles_fuse_as_cell_by_cell(seed in 0u64..u64::MAX, patches in 1usize..80) {
+            let frame = frame();
+            let mut rng = crate::rng::SplitMix64::new(seed);
+            let (mut fusion, mut model) = (MapFusion::new(frame), CellByCell::new(&frame));
+            for _ in 0..patches {
+                let (layer, patch) = random_patch(&mut rng, &frame);
+                proptest::prop_assert_eq!(fusion.apply(layer, &patch).unwrap(), model.apply(layer, &patch));
+            }
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            proptest::prop_assert_eq!(bits(&fusion.sum), bits(&model.sum));
+            proptest::prop_assert_eq!(&fusion.observers, &model.observers);
+            proptest::prop_assert_eq!(fusion.grid().cells(), &model.grid[..]);
+            for (id, layer) in &fusion.layers {
+                let made: std::collections::BTreeSet<(usize, usize)> = layer
+                    .tiles
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, t)| t.is_some())
+                    .map(|(t, _)| (t % fusion.tiles_x, t / fusion.tiles_x))
+                    .collect();
+                proptest::prop_assert_eq!(made, model.tiles.get(id).cloned().unwrap_or_default());
+            }
+        }
     }
 
     /// Fusion written out cell by cell over a dense copy of each layer: the
@@ -862,37 +890,6 @@ mod tests {
                 }
             }
             change
-        }
-    }
-
-    proptest::proptest! {
-        #![proptest_config(crate::testing::seeded_proptest(64))]
-        /// Applying a patch a tile's run at a time changes what applying it
-        /// cell by cell does, bit for bit, and makes a layer's tile only
-        /// where the layer was sent a known cell.
-        #[test]
-        fn runs_within_tiles_fuse_as_cell_by_cell(seed in 0u64..u64::MAX, patches in 1usize..80) {
-            let frame = frame();
-            let mut rng = crate::rng::SplitMix64::new(seed);
-            let (mut fusion, mut model) = (MapFusion::new(frame), CellByCell::new(&frame));
-            for _ in 0..patches {
-                let (layer, patch) = random_patch(&mut rng, &frame);
-                proptest::prop_assert_eq!(fusion.apply(layer, &patch).unwrap(), model.apply(layer, &patch));
-            }
-            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-            proptest::prop_assert_eq!(bits(&fusion.sum), bits(&model.sum));
-            proptest::prop_assert_eq!(&fusion.observers, &model.observers);
-            proptest::prop_assert_eq!(fusion.grid().cells(), &model.grid[..]);
-            for (id, layer) in &fusion.layers {
-                let made: std::collections::BTreeSet<(usize, usize)> = layer
-                    .tiles
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, t)| t.is_some())
-                    .map(|(t, _)| (t % fusion.tiles_x, t / fusion.tiles_x))
-                    .collect();
-                proptest::prop_assert_eq!(made, model.tiles.get(id).cloned().unwrap_or_default());
-            }
         }
     }
 

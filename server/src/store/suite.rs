@@ -112,6 +112,11 @@ pub(crate) fn spec() -> MissionSpec {
     }
 }
 
+/// A replica named `id`, reached at `http://{id}:1`.
+fn claimant(id: &str) -> Claimant {
+    Claimant { id: id.into(), address: format!("http://{id}:1") }
+}
+
 pub(crate) fn robot_spec(name: &str) -> RobotSpec {
     RobotSpec {
         name: name.into(),
@@ -553,10 +558,7 @@ async fn a_folded_patch_log_restores_the_same_map(db: TestDb) {
 /// creator, never listed as unclaimed, and not claimable by another.
 async fn a_mission_created_with_its_lease_is_never_unclaimed(db: TestDb) {
     let store = db.open().await;
-    let (a, b) = (
-        Claimant { id: "a".into(), address: "http://a:1".into() },
-        Claimant { id: "b".into(), address: "http://b:1".into() },
-    );
+    let (a, b) = (claimant("a"), claimant("b"));
     let period = Duration::from_secs(5);
     let (mission, lease) = store.create_claimed_mission(&spec(), Timestamp(1_000), &a, period).await.unwrap();
     assert_eq!(mission.spec, spec());
@@ -574,10 +576,7 @@ async fn a_lease_passes_on_only_once_it_ran_out_and_fences_its_old_holder(db: Te
     let store = db.open().await;
     let mission = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
     let other = store.create_mission(&spec(), Timestamp(1)).await.unwrap();
-    let (a, b) = (
-        Claimant { id: "a".into(), address: "http://a:1".into() },
-        Claimant { id: "b".into(), address: "http://b:1".into() },
-    );
+    let (a, b) = (claimant("a"), claimant("b"));
     let (period, grace) = (Duration::from_secs(5), Duration::from_secs(1));
     assert_eq!(store.unclaimed(Timestamp(1_000), grace).await.unwrap(), vec![mission.id, other.id]);
     let first = store.claim(mission.id, &a, Timestamp(1_000), period, grace).await.unwrap().unwrap();
@@ -637,10 +636,7 @@ async fn a_lease_passes_on_only_once_it_ran_out_and_fences_its_old_holder(db: Te
 /// withdrawn; every mission counts towards the share, held or not.
 async fn replicas_are_counted_while_their_announcements_last(db: TestDb) {
     let store = db.open().await;
-    let (a, b) = (
-        Claimant { id: "a".into(), address: "http://a:1".into() },
-        Claimant { id: "b".into(), address: "http://b:1".into() },
-    );
+    let (a, b) = (claimant("a"), claimant("b"));
     let period = Duration::from_secs(5);
     let alone = store.announce(&a, Timestamp(1_000), period).await.unwrap();
     assert_eq!(alone, Share { replicas: 1, missions: 0 });
