@@ -373,12 +373,7 @@ impl MapFusion {
                     }
                     let old = std::mem::replace(slot, new);
                     let i = y * width + run_x + k;
-                    if old.is_nan() {
-                        self.observers[i] += 1;
-                        self.sum[i] += new;
-                    } else {
-                        self.sum[i] += new - old;
-                    }
+                    replace_in_sum(&mut self.sum[i], &mut self.observers[i], old, new);
                     let fused = fused_percent(self.sum[i]);
                     let before = self.grid.value_at(i);
                     if before != fused {
@@ -590,6 +585,17 @@ impl MapFusion {
         let whole = |start: usize, side: u32, grid: u32| side as usize == TILE.min(grid as usize - start);
         let t = (y / TILE) * self.tiles_x + x / TILE;
         (whole(x, rect.width, self.frame.width) && whole(y, rect.height, self.frame.height)).then_some(t)
+    }
+}
+
+/// A layer's value of a cell goes from `old` (NaN: the layer did not know
+/// it) to `new`, in the cell's sum over the layers and its count of them.
+fn replace_in_sum(sum: &mut f32, observers: &mut u16, old: f32, new: f32) {
+    if old.is_nan() {
+        *observers += 1;
+        *sum += new;
+    } else {
+        *sum += new - old;
     }
 }
 
@@ -872,12 +878,7 @@ mod tests {
                         continue;
                     }
                     values[i] = new;
-                    if old.is_nan() {
-                        self.observers[i] += 1;
-                        self.sum[i] += new;
-                    } else {
-                        self.sum[i] += new - old;
-                    }
+                    replace_in_sum(&mut self.sum[i], &mut self.observers[i], old, new);
                     let fused = fused_percent(self.sum[i]);
                     if self.grid[i] != fused {
                         let cell = Cell::new(x as i32, y as i32);
