@@ -160,7 +160,9 @@ impl Patch {
     /// A patch of occupancy percentages, one byte per cell as ROS's
     /// `nav_msgs/OccupancyGrid` holds them: 0 to 100, or [`UNKNOWN_PERCENT`].
     /// A table lookup per cell, where probabilities take a logarithm.
-    pub fn from_occupancy_percent(rect: CellRect, occupancy: &[u8]) -> Result<Self, PatchError> {
+    /// The patch keeps `occupancy` (see [`Self::occupancy_percent`]), so it
+    /// is taken, not copied.
+    pub fn from_occupancy_percent(rect: CellRect, occupancy: Vec<u8>) -> Result<Self, PatchError> {
         Self::check_count(rect, occupancy.len())?;
         if let Some(index) = occupancy.iter().position(|&v| v > 100 && v != UNKNOWN_PERCENT) {
             return Err(PatchError::PercentOutOfRange { index, value: occupancy[index] });
@@ -169,7 +171,7 @@ impl Patch {
         // sized once.
         let table = &*LOG_ODDS_OF_BYTE;
         let log_odds = occupancy.iter().map(|&v| table[usize::from(v)]).collect();
-        Ok(Self { rect, log_odds, occupancy_percent: Some(occupancy.to_vec()) })
+        Ok(Self { rect, log_odds, occupancy_percent: Some(occupancy) })
     }
 
     /// A patch of log-odds; `unknown` is empty or one flag per cell.
@@ -301,8 +303,8 @@ pub struct MapFusion {
 }
 
 /// `row`, starting at column `x`, cut where it crosses from one tile into
-/// the next.
-fn runs_within_tiles(row: &[f32], x: usize) -> impl Iterator<Item = &[f32]> {
+/// the next: each run with the column it starts at.
+fn runs_within_tiles(row: &[f32], x: usize) -> impl Iterator<Item = (usize, &[f32])> {
     let mut rest = row;
     let mut x = x;
     std::iter::from_fn(move || {
@@ -310,9 +312,10 @@ fn runs_within_tiles(row: &[f32], x: usize) -> impl Iterator<Item = &[f32]> {
             return None;
         }
         let (run, tail) = rest.split_at((TILE - (x & (TILE - 1))).min(rest.len()));
+        let start = x;
         rest = tail;
         x += run.len();
-        Some(run)
+        Some((start, run))
     })
 }
 
@@ -356,12 +359,10 @@ impl MapFusion {
         for (y, row) in (rect.y as usize..).zip(patch.log_odds().chunks_exact(patch_width)) {
             // Row by row, one tile's run of cells at a time: the tile is
             // looked up once per run, not per cell.
-            let mut x = rect.x as usize;
-            for run in runs_within_tiles(row, x) {
-                let tile_index = (y >> TILE_SHIFT) * tiles_x + (x >> TILE_SHIFT);
-                let first = (y & (TILE - 1)) * TILE + (x & (TILE - 1));
-                let (run_x, tile) = (x, &mut layer.tiles[tile_index]);
-                x += run.len();
+            for (run_x, run) in runs_within_tiles(row, rect.x as usize) {
+                let tile_index = (y >> TILE_SHIFT) * tiles_x + (run_x >> TILE_SHIFT);
+                let first = (y & (TILE - 1)) * TILE + (run_x & (TILE - 1));
+                let tile = &mut layer.tiles[tile_index];
                 // A tile is made only for a known cell.
                 if tile.is_none() && run.iter().all(|v| v.is_nan()) {
                     continue;
@@ -683,7 +684,7 @@ mod tests {
         let floats: Vec<f32> = (0..=100).map(|p| p as f32 / 100.0).chain([0.0]).collect();
         let mut unknown = vec![false; 102];
         unknown[101] = true;
-        let from_bytes = Patch::from_occupancy_percent(rect, &bytes).unwrap();
+        let from_bytes = Patch::from_occupancy_percent(rect, bytes.clone()).unwrap();
         let from_floats = Patch::from_probabilities(rect, &floats, &unknown).unwrap();
         assert_eq!(from_bytes.rect(), from_floats.rect());
         for (i, (a, b)) in from_bytes.log_odds().iter().zip(from_floats.log_odds()).enumerate() {
@@ -699,18 +700,21 @@ mod tests {
     fn occupancy_bytes_that_are_no_percentage_are_refused() {
         let rect = CellRect::new(0, 0, 2, 2);
         assert_eq!(
-            Patch::from_occupancy_percent(rect, &[0, 100, 101, 255]),
+            Patch::from_occupancy_percent(rect, vec![0, 100, 101, 255]),
             Err(PatchError::PercentOutOfRange { index: 2, value: 101 })
         );
         assert_eq!(
-            Patch::from_occupancy_percent(rect, &[0, 254, 0, 0]),
+            Patch::from_occupancy_percent(rect, vec![0, 254, 0, 0]),
             Err(PatchError::PercentOutOfRange { index: 1, value: 254 })
         );
         assert!(matches!(
-            Patch::from_occupancy_percent(rect, &[0; 3]),
+            Patch::from_occupancy_percent(rect, vec![0; 3]),
             Err(PatchError::ValueCount { expected: 4, got: 3, .. })
         ));
-        assert!(matches!(Patch::from_occupancy_percent(CellRect::new(0, 0, 2, 0), &[]), Err(PatchError::Empty { .. })));
+        assert!(matches!(
+            Patch::from_occupancy_percent(CellRect::new(0, 0, 2, 0), vec![]),
+            Err(PatchError::Empty { .. })
+        ));
     }
 
     #[test]

@@ -399,21 +399,19 @@ impl Executive {
         // Reserved before the store is asked, so that simultaneous calls
         // cannot all pass the check; given back if the mission is not made.
         self.usage.reserve(cells, &self.settings)?;
-        // Held until the mission is in this executive's map: the lease
-        // keeper must not hand it on before it is there to be given up.
-        let _claiming = match &self.ownership {
-            Some(ownership) => Some(ownership.claiming().await),
-            None => None,
-        };
         let now = Timestamp::now();
-        let created = match &self.ownership {
+        let (_claiming, created) = match &self.ownership {
             // A replica's mission is created with its lease, in one
-            // transaction: no other replica ever sees it unclaimed.
+            // transaction: no other replica ever sees it unclaimed. The
+            // claim lock is held until the mission is in this executive's
+            // map: the lease keeper must not hand it on before that.
             Some(ownership) => {
+                let claiming = ownership.claiming().await;
                 let ReplicaSettings { claimant, lease, .. } = &ownership.settings;
-                self.store.create_claimed_mission(&spec, now, claimant, *lease).await.map(|(m, l)| (m, Some(l)))
+                let created = self.store.create_claimed_mission(&spec, now, claimant, *lease).await;
+                (Some(claiming), created.map(|(m, l)| (m, Some(l))))
             }
-            None => self.store.create_mission(&spec, now).await.map(|m| (m, None)),
+            None => (None, self.store.create_mission(&spec, now).await.map(|m| (m, None))),
         };
         let (record, lease) = match created {
             Ok(created) => created,

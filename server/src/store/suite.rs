@@ -335,7 +335,7 @@ async fn patches_come_back_bit_for_bit_whichever_way_they_came(db: TestDb) {
     let floats: Vec<f32> = (0..102).map(|i| (i % 7) as f32 / 7.0).collect();
     let unknown: Vec<bool> = (0..102).map(|i| i % 5 == 0).collect();
     let sent = [
-        Patch::from_occupancy_percent(rect, &bytes).unwrap(),
+        Patch::from_occupancy_percent(rect, bytes.clone()).unwrap(),
         Patch::from_probabilities(rect, &floats, &unknown).unwrap(),
     ];
     for (seq, patch) in (1..).zip(&sent) {

@@ -291,7 +291,7 @@ impl TryFrom<pb::MapPatch> for PatchInput {
                         "an OCCUPANCY_PERCENT patch carries its cells in `occupancy`; leave `values` and `unknown` empty",
                     ));
                 }
-                Patch::from_occupancy_percent(rect, &p.occupancy)?
+                Patch::from_occupancy_percent(rect, p.occupancy)?
             }
             Ok(pb::CellEncoding::Probability | pb::CellEncoding::LogOdds) if !p.occupancy.is_empty() => {
                 return Err(invalid(

@@ -531,7 +531,7 @@ fn decode_cells(at: &At, rect: CellRect, stored: Vec<u8>, format: i64) -> Result
         return Err(at.bad(format!("cells holds {} bytes, not {bytes_per_cell} per cell of {count} cells", raw.len())));
     }
     let patch = if format == CELLS_PERCENT_LZ4 {
-        Patch::from_occupancy_percent(rect, &raw)
+        Patch::from_occupancy_percent(rect, raw)
     } else {
         Patch::from_stored(rect, raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
     };
