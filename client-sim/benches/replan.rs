@@ -27,6 +27,7 @@ use exploration::frontier::{FrontierMap, clusters};
 use exploration::grid::{Cell, OccupancyGrid, UNKNOWN};
 use exploration::policy::{Capabilities, PlanningInput, PolicyConfig, RobotView, catalogue};
 use exploration::rng::SplitMix64;
+use exploration::workers::Workers;
 
 fn map() -> PathBuf {
     let shared = std::env::var_os("EXPLORATION_SHARED_MAPS")
@@ -135,7 +136,7 @@ fn plan_every_policy(c: &mut Criterion, world: &World, percent: usize, teams: &[
                 grid: &grid,
                 clusters: &clusters,
                 robots,
-                threads: 2,
+                workers: Workers::unpaced(2),
                 bids: &bids,
                 seed: 1,
                 reserved: &[],

@@ -12,6 +12,7 @@ use crate::cost::{CostCache, TraversalKind, cost_map};
 use crate::frontier::FrontierCluster;
 use crate::grid::{Cell, CellRect};
 use crate::policy::RobotView;
+use crate::workers::Workers;
 
 /// Why a frontier cluster is left unexplored (the cases in which Wurm et
 /// al. 2008, Eq. 4, give every robot infinite cost).
@@ -59,7 +60,7 @@ pub fn remaining_frontier(
     robots: &[RobotView],
     forbidden: &[CellRect],
     costs: &mut CostCache<'_>,
-    threads: usize,
+    workers: Workers<'_>,
 ) -> RemainingFrontier {
     let kinds: Vec<TraversalKind> = robots.iter().map(RobotView::free_space).collect();
     let mut by_kind: std::collections::BTreeMap<TraversalKind, Vec<Cell>> = Default::default();
@@ -67,7 +68,7 @@ pub fn remaining_frontier(
         by_kind.entry(*kind).or_default().push(robot.cell);
     }
     for (kind, sources) in &by_kind {
-        costs.cost_maps(*kind, sources, threads);
+        costs.cost_maps(*kind, sources, workers);
     }
     let maps: Vec<_> = robots.iter().zip(&kinds).map(|(r, k)| costs.cost_map(*k, r.cell)).collect();
     // Reachability for a point robot from any robot: tells narrow passages
@@ -158,14 +159,15 @@ mod tests {
         let point = robot(1, Cell::new(5, 5), 2.0);
         let clusters = clusters(&FrontierMap::detect(&grid), 1);
         let mut cache = CostCache::new(&grid);
-        let remaining = remaining_frontier(&clusters, 1, std::slice::from_ref(&point), &[], &mut cache, 1);
+        let remaining =
+            remaining_frontier(&clusters, 1, std::slice::from_ref(&point), &[], &mut cache, Workers::unpaced(1));
         assert!(!remaining.is_exhausted());
         assert!(remaining.left.iter().all(|(_, r)| *r == LeftReason::Disconnected), "{remaining:?}");
 
         let mut wide = point.clone();
         wide.capabilities.footprint_radius_m = 0.15;
         let mut cache = CostCache::new(&grid);
-        let remaining = remaining_frontier(&clusters, 1, &[wide], &[], &mut cache, 1);
+        let remaining = remaining_frontier(&clusters, 1, &[wide], &[], &mut cache, Workers::unpaced(1));
         assert!(remaining.is_exhausted(), "{remaining:?}");
         let reasons: Vec<LeftReason> = remaining.left.iter().map(|(_, r)| *r).collect();
         assert!(reasons.contains(&LeftReason::TooNarrow), "{reasons:?}");
@@ -180,21 +182,23 @@ mod tests {
         let all = CellRect::new(0, 0, frame.width, frame.height);
         let mut cache = CostCache::new(&grid);
         let point = robot(1, Cell::new(5, 5), 2.0);
-        let remaining = remaining_frontier(&clusters, 1, std::slice::from_ref(&point), &[all], &mut cache, 1);
+        let remaining =
+            remaining_frontier(&clusters, 1, std::slice::from_ref(&point), &[all], &mut cache, Workers::unpaced(1));
         assert!(remaining.is_exhausted());
         assert!(remaining.left.iter().all(|(_, r)| *r == LeftReason::Forbidden));
 
         let mut blacklisted = point.clone();
         blacklisted.excluded = vec![all];
-        let remaining = remaining_frontier(&clusters, 1, &[blacklisted.clone()], &[], &mut cache, 1);
+        let remaining = remaining_frontier(&clusters, 1, &[blacklisted.clone()], &[], &mut cache, Workers::unpaced(1));
         assert!(remaining.is_exhausted());
         assert!(remaining.left.iter().any(|(_, r)| *r == LeftReason::Blacklisted), "{remaining:?}");
         // A second robot, not blacklisted, keeps the frontier open.
         let other = robot(2, Cell::new(3, 3), 2.0);
-        let remaining = remaining_frontier(&clusters, 1, &[blacklisted, other.clone()], &[], &mut cache, 1);
+        let remaining =
+            remaining_frontier(&clusters, 1, &[blacklisted, other.clone()], &[], &mut cache, Workers::unpaced(1));
         assert!(!remaining.is_exhausted());
         // Clusters under the minimum size are left as too small.
-        let remaining = remaining_frontier(&clusters, 10_000, &[other], &[], &mut cache, 1);
+        let remaining = remaining_frontier(&clusters, 10_000, &[other], &[], &mut cache, Workers::unpaced(1));
         assert!(remaining.is_exhausted());
         assert!(remaining.left.iter().all(|(_, r)| *r == LeftReason::TooSmall));
     }

@@ -18,6 +18,7 @@ use std::collections::{BinaryHeap, HashMap};
 use std::sync::Arc;
 
 use crate::grid::{Cell, GridFrame, NEIGHBOURS_8, OccupancyGrid};
+use crate::workers::{Workers, in_parallel};
 
 mod growing;
 mod search;
@@ -302,20 +303,6 @@ pub fn shortest_path(frame: &GridFrame, start: Cell, goal: Cell, passable: impl 
     None
 }
 
-/// `f` over `items` on up to `threads` scoped threads, results in order.
-pub fn in_parallel<T: Sync, R: Send>(items: &[T], threads: usize, f: impl Fn(&T) -> R + Sync) -> Vec<R> {
-    let threads = threads.clamp(1, items.len().max(1));
-    if threads == 1 {
-        return items.iter().map(&f).collect();
-    }
-    let chunk = items.len().div_ceil(threads);
-    std::thread::scope(|scope| {
-        let handles: Vec<_> =
-            items.chunks(chunk).map(|part| scope.spawn(|| part.iter().map(&f).collect::<Vec<_>>())).collect();
-        handles.into_iter().flat_map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect()
-    })
-}
-
 /// Cost maps for one replanning, each computed once however many policies or
 /// robots ask for it. Built over one grid; throw it away when the grid changes.
 #[derive(Debug)]
@@ -356,13 +343,13 @@ impl<'g> CostCache<'g> {
     }
 
     /// Cost maps from several sources, the missing ones computed in parallel
-    /// on up to `threads` threads.
-    pub fn cost_maps(&mut self, kind: TraversalKind, sources: &[Cell], threads: usize) -> Vec<Arc<CostMap>> {
+    /// by `workers`.
+    pub fn cost_maps(&mut self, kind: TraversalKind, sources: &[Cell], workers: Workers<'_>) -> Vec<Arc<CostMap>> {
         let traversal = self.traversal(kind);
         let mut missing: Vec<Cell> = sources.iter().copied().filter(|s| !self.maps.contains_key(&(kind, *s))).collect();
         missing.sort_unstable();
         missing.dedup();
-        let computed = in_parallel(&missing, threads, |&s| cost_map(&traversal, &[s]));
+        let computed = in_parallel(&missing, workers, |&s| cost_map(&traversal, &[s]));
         for (s, map) in missing.into_iter().zip(computed) {
             self.computed += 1;
             self.maps.insert((kind, s), Arc::new(map));
@@ -707,7 +694,7 @@ mod tests {
         let a = cache.cost_map(kind, Cell::new(0, 0));
         let b = cache.cost_map(kind, Cell::new(0, 0));
         assert!(Arc::ptr_eq(&a, &b));
-        let many = cache.cost_maps(kind, &[Cell::new(0, 0), Cell::new(3, 1), Cell::new(2, 0)], 2);
+        let many = cache.cost_maps(kind, &[Cell::new(0, 0), Cell::new(3, 1), Cell::new(2, 0)], Workers::unpaced(2));
         assert_eq!(many.len(), 3);
         assert_eq!(cache.computed(), 3);
         assert_eq!(many[1].cost(Cell::new(3, 1)), Some(0.0));

@@ -18,6 +18,7 @@
 //! - [`policy`]: the coordination policies of the literature behind one interface.
 //! - [`completion`]: whether any robot can still explore the remaining frontier, and why not.
 //! - [`rng`]: the seeded SplitMix64 generator every random choice uses.
+//! - [`workers`]: the threads a replanning may use, and the hook that paces them.
 //!
 //! The papers behind the policies are in the repository's `docs/papers.md`.
 
@@ -32,6 +33,7 @@ pub mod policy;
 pub mod rng;
 pub mod segment;
 pub mod visibility;
+pub mod workers;
 
 #[cfg(test)]
 pub(crate) mod testing {

@@ -26,6 +26,7 @@ use exploration_proto::v1 as pb;
 pub mod auth;
 pub mod clock;
 pub mod connections;
+pub mod cpu_limit;
 pub mod domain;
 pub mod error;
 pub mod executive;

@@ -66,6 +66,8 @@ pub struct Metrics {
     pub stale_plans: Counter,
     /// Plans waiting for or holding a planner thread.
     pub planner_busy: Gauge,
+    /// Seconds planning threads slept to keep to their CPU budget.
+    pub planner_paced_seconds: Counter<f64, AtomicU64>,
     /// Time to commit one changeset (or one group of them).
     pub store_commit: Histogram,
     /// Changesets committed per transaction.
@@ -112,6 +114,7 @@ impl Metrics {
             planner_triggers: Counter::default(),
             stale_plans: Counter::default(),
             planner_busy: Gauge::default(),
+            planner_paced_seconds: Counter::default(),
             store_commit: latency_histogram(),
             commit_group: Histogram::new(exponential_buckets(1.0, 2.0, 10)),
             mission_wait: latency_histogram(),
@@ -139,6 +142,11 @@ impl Metrics {
             "planner_busy",
             "Plans waiting for or holding a planner thread",
             metrics.planner_busy.clone(),
+        );
+        registry.register(
+            "planner_paced_seconds",
+            "Seconds planning threads slept to keep to their CPU budget (--planner-cpu)",
+            metrics.planner_paced_seconds.clone(),
         );
         registry.register("store_commit_seconds", "Time to commit one transaction", metrics.store_commit.clone());
         registry.register("store_commit_group", "Changesets committed per transaction", metrics.commit_group.clone());

@@ -82,6 +82,54 @@ async fn plans_arrive_on_the_streams_and_the_metrics_move() {
     exec.stop().await;
 }
 
+/// With a CPU budget (`--planner-cpu`; by default half a container's CPU
+/// limit), the planning threads sleep when their CPU time runs ahead of it,
+/// and the plans still arrive. Without the budget wired into the plans'
+/// searches and jobs nothing sleeps, and the count stays at zero.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn plans_on_a_cpu_budget_wait_for_it_and_still_arrive() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = coordinator::Config::new(dir.path().join("budget.db"));
+    // A twentieth of a core: a search of a few milliseconds is ahead of it.
+    config.executive.planner_cpu = Some(0.05);
+    let exec = TestExecutive::start_with_http(config).await;
+    let http = exec.http.unwrap();
+    let mut missions = exec.missions();
+    let mission = missions
+        .create_mission(pb::CreateMissionRequest {
+            name: "budget".into(),
+            frame: Some(common::frame(240, 120)),
+            policy: Some(pb::PolicySpec { name: "burgard".into(), params: Default::default() }),
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let mut fleet = exec.fleet();
+    let mut streams = Vec::new();
+    for (i, x) in [0.5, 6.0, 11.5].into_iter().enumerate() {
+        let robot = register(&mut fleet, mission.id, &format!("r{i}"), x, 0.5).await;
+        let stream = fleet.watch_assignment(pb::WatchAssignmentRequest { robot_id: robot.id }).await.unwrap();
+        streams.push(stream.into_inner());
+        fleet.update_map(update(robot.id, 1, x, 0.5, vec![patch(0, 0, 120, 120, 0.1)])).await.unwrap();
+    }
+    for stream in &mut streams {
+        let assigned = async {
+            while let Some(assignment) = stream.message().await.unwrap() {
+                if assignment.task_id != 0 {
+                    return;
+                }
+            }
+            panic!("the stream ended");
+        };
+        tokio::time::timeout(std::time::Duration::from_secs(60), assigned).await.expect("a task within 60 s");
+    }
+    let after = common::http_get(http, "/metrics").await;
+    assert!(metric(&after, "coordinator_plan_seconds_count{name=\"burgard\"}") >= 1.0, "{after}");
+    assert!(metric(&after, "coordinator_planner_paced_seconds_total") > 0.0, "{after}");
+    exec.stop().await;
+}
+
 /// More robot requests than a mission's queue holds are refused at once with
 /// RESOURCE_EXHAUSTED and a retry hint, counted as shed; when the burst is
 /// over, calls go through again by themselves.

@@ -180,6 +180,7 @@ mod tests {
     use crate::grid::testing::grid_from_picture;
     use crate::policy::Nearest;
     use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
+    use crate::workers::Workers;
 
     fn burgard() -> Burgard {
         Burgard { beta: 1.0, occ_max: 0.6, smoothing_sigma_m: 0.0, switch_margin: 0.0 }
@@ -254,7 +255,7 @@ mod tests {
                 grid: &grid,
                 clusters: &clusters,
                 robots: &robots,
-                threads: 1,
+                workers: Workers::unpaced(1),
                 bids: &[Vec::new(), Vec::new()],
                 seed: 0,
                 reserved: &[],
@@ -324,7 +325,7 @@ mod tests {
                 grid: &grid,
                 clusters: &clusters,
                 robots: &team,
-                threads: 1 + (seed % 3) as usize,
+                workers: Workers::unpaced(1 + (seed % 3) as usize),
                 bids: &bids,
                 seed: 0,
                 reserved: &reserved,

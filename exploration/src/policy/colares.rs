@@ -287,6 +287,7 @@ mod tests {
     use super::*;
     use crate::grid::testing::grid_from_picture;
     use crate::policy::testing::{plan_targets, plan_with_defaults, robot};
+    use crate::workers::Workers;
 
     /// Colares & Chaimowicz 2016, Fig. 2: (α, β) = (4, 9) favours near
     /// frontiers, (9, 4) far ones; each curve rises to a single peak at
@@ -442,7 +443,7 @@ mod tests {
                 robot.capabilities.footprint_radius_m = 0.6;
             }
             let (towards, complete) = with_input(&grid, &team, &vec![Vec::new(); robots], |input| {
-                let input = PlanningInput { threads: 1 + (seed % 2) as usize, ..*input };
+                let input = PlanningInput { workers: Workers::unpaced(1 + (seed % 2) as usize), ..*input };
                 let frontier = input.frontier_cells();
                 let towards = frontier_distances(&input, &mut CostCache::new(&grid), &frontier);
                 let complete: Vec<Vec<Option<f64>>> = free_space_cost_maps(&input, &mut CostCache::new(&grid))

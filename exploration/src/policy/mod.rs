@@ -11,6 +11,7 @@ use std::collections::BTreeMap;
 use crate::cost::CostCache;
 use crate::frontier::FrontierCluster;
 use crate::grid::{Cell, CellRect, OccupancyGrid};
+use crate::workers::Workers;
 
 mod burgard;
 mod burgard_joint;
@@ -112,8 +113,8 @@ pub struct PlanningInput<'a> {
     pub clusters: &'a [FrontierCluster],
     /// The robots to assign, in a fixed order.
     pub robots: &'a [RobotView],
-    /// Threads the policy may use for cost maps.
-    pub threads: usize,
+    /// The threads the policy may use for its searches, and their pace.
+    pub workers: Workers<'a>,
     /// Each robot's latest bids (Simmons et al. 2000, §4.1), in the order of
     /// `robots`; an empty list where a robot sent none.
     pub bids: &'a [Vec<Bid>],
@@ -151,7 +152,7 @@ impl PlanningInput<'_> {
 }
 
 /// Each robot's cost map over its own traversal kind, computed once per
-/// replanning (cached) and in parallel on `input.threads` threads.
+/// replanning (cached) and in parallel on `input.workers` threads.
 pub fn robot_cost_maps(
     input: &PlanningInput<'_>,
     costs: &mut CostCache<'_>,
@@ -162,7 +163,7 @@ pub fn robot_cost_maps(
         by_kind.entry(*kind).or_default().push(robot.cell);
     }
     for (kind, sources) in &by_kind {
-        costs.cost_maps(*kind, sources, input.threads);
+        costs.cost_maps(*kind, sources, input.workers);
     }
     input.robots.iter().zip(kinds).map(|(robot, kind)| costs.cost_map(*kind, robot.cell)).collect()
 }
@@ -181,7 +182,7 @@ pub fn costs_to_cells(
     let towards = towards_goals(kinds, costs, cells);
     let pairs: Vec<(&RobotView, &Towards)> = input.robots.iter().zip(&towards).collect();
     costs.count_searches(pairs.len());
-    crate::cost::in_parallel(&pairs, input.threads, |(robot, (traversal, goals))| {
+    crate::workers::in_parallel(&pairs, input.workers, |(robot, (traversal, goals))| {
         let mut search = crate::cost::GrowingCostMap::towards(traversal, robot.cell, goals);
         search.grow_to_reach(cells);
         cells.iter().map(|&c| if robot.may_target(c) { search.cost(c) } else { None }).collect()
@@ -331,7 +332,7 @@ pub fn cluster_cost_matrix(
     }
     let traversal = costs.traversal(kinds[0]);
     let reach: Vec<Cell> = input.robots.iter().map(|r| r.cell).chain(also_reach.iter().copied()).collect();
-    let maps = crate::cost::in_parallel(input.clusters, input.threads, |cluster| {
+    let maps = crate::workers::in_parallel(input.clusters, input.workers, |cluster| {
         std::sync::Arc::new(crate::cost::cost_map_reaching(&traversal, &cluster.cells, &reach))
     });
     let rows = input
@@ -573,7 +574,16 @@ pub(crate) mod testing {
     ) -> R {
         let frontier = FrontierMap::detect(grid);
         let clusters = clusters(&frontier, 1);
-        f(&PlanningInput { grid, clusters: &clusters, robots, threads: 1, bids, seed: 7, reserved: &[], rooms: None })
+        f(&PlanningInput {
+            grid,
+            clusters: &clusters,
+            robots,
+            workers: Workers::unpaced(1),
+            bids,
+            seed: 7,
+            reserved: &[],
+            rooms: None,
+        })
     }
 }
 

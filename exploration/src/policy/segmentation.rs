@@ -25,9 +25,10 @@ use std::sync::Arc;
 use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_METRES};
 use super::{Plan, PlanningInput, Policy, RobotView, Target, current_target, free_space_cost_maps};
 use crate::assign::assign_with_dummies;
-use crate::cost::{CostCache, CostMap, GoalDistance, GrowingCostMap, TraversalKind, TraversalMap, in_parallel};
+use crate::cost::{CostCache, CostMap, GoalDistance, GrowingCostMap, TraversalKind, TraversalMap};
 use crate::grid::Cell;
 use crate::segment::{Segment, given, segment};
+use crate::workers::in_parallel;
 
 pub(super) const NAME: &str = "segmentation";
 
@@ -159,7 +160,7 @@ impl Policy for SegmentationPolicy {
         // Lines 6–8: within each segment, its robots to its frontier cells,
         // each robot's costs to its segment's cells computed in parallel.
         let everyone: Vec<usize> = (0..input.robots.len()).collect();
-        let path_costs: Vec<Vec<f64>> = in_parallel(&everyone, input.threads, |&i| match chosen[i] {
+        let path_costs: Vec<Vec<f64>> = in_parallel(&everyone, input.workers, |&i| match chosen[i] {
             Some(k) => reach.to_cells(i, &input.robots[i], k, &open[k].frontier),
             None => Vec::new(),
         });
@@ -219,7 +220,7 @@ impl Reach {
             let traversal = costs.traversal(kind);
             let plain = |r: &RobotView| r.excluded.is_empty() && traversal.starts_inside(r.cell);
             if input.robots.iter().all(plain) {
-                let goals = in_parallel(open, input.threads, |s| GoalDistance::new(&traversal, &s.frontier));
+                let goals = in_parallel(open, input.workers, |s| GoalDistance::new(&traversal, &s.frontier));
                 return Self::FromSegments { traversal, goals };
             }
         }

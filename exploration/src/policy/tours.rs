@@ -206,7 +206,7 @@ fn legs_between_stops(
             jobs.push((i, a, source));
         }
     }
-    let rows = crate::cost::in_parallel(&jobs, input.threads, |(i, a, source)| {
+    let rows = crate::workers::in_parallel(&jobs, input.workers, |(i, a, source)| {
         let stops = &tours[*i];
         let map = match source {
             Wavefront::Reused(map) => map.clone(),

@@ -14,8 +14,9 @@
 
 use super::registry::{MIN_FRONTIER_SIZE, PolicyDescriptor, SWITCH_METRES};
 use super::{Plan, PlanningInput, Policy, RobotView, Target, Towards, current_target, towards_goals};
-use crate::cost::{CostCache, GrowingCostMap, TraversalKind, in_parallel};
+use crate::cost::{CostCache, GrowingCostMap, TraversalKind};
 use crate::grid::Cell;
+use crate::workers::in_parallel;
 
 pub(super) const NAME: &str = "unassigned";
 
@@ -57,7 +58,7 @@ impl Policy for Unassigned {
         };
         // Only what each search reached is kept: a search holds a label per
         // known cell, too much to keep one per robot of a large team.
-        let first: Vec<Reached> = in_parallel(&pairs, input.threads, |(robot, towards)| search(robot, towards, &[]).1);
+        let first: Vec<Reached> = in_parallel(&pairs, input.workers, |(robot, towards)| search(robot, towards, &[]).1);
         let mut order: Vec<usize> = (0..input.robots.len()).collect();
         order.sort_by_key(|&i| input.robots[i].id);
         let mut taken: Vec<Cell> = Vec::new();
@@ -168,6 +169,7 @@ mod tests {
     use crate::grid::Cell;
     use crate::grid::testing::grid_from_picture;
     use crate::policy::testing::{plan_with_defaults, robot};
+    use crate::workers::Workers;
 
     /// Two robots beside a frontier two cells high, another frontier far
     /// behind them: each takes its own cell of the near frontier (Wurm's
@@ -234,7 +236,7 @@ mod tests {
                 grid: &grid,
                 clusters: &clusters,
                 robots: &team,
-                threads: 1 + (seed % 3) as usize,
+                workers: Workers::unpaced(1 + (seed % 3) as usize),
                 bids: &bids,
                 seed: 0,
                 reserved: &[],

@@ -47,6 +47,13 @@ struct Args {
     /// plan with --planner-threads.
     #[arg(long, env = "COORDINATOR_BACKGROUND_PLANNER_THREADS")]
     background_planner_threads: Option<usize>,
+    /// CPU the planning threads may use on average, in cores, or
+    /// `unlimited` (default: half the CPU limit of this process's cgroup,
+    /// a container's `limits: cpu`, when it has one; otherwise unlimited).
+    /// Under a limit, a plan that spends a period's quota at once makes
+    /// every request wait for the next period.
+    #[arg(long, env = "COORDINATOR_PLANNER_CPU", value_parser = parse_planner_cpu)]
+    planner_cpu: Option<PlannerCpu>,
     /// Map patches a mission's log holds before the oldest are folded into
     /// a snapshot of the map, which then replaces them (0: never fold; the
     /// log then grows with every map update for as long as the mission lives).
@@ -112,6 +119,43 @@ struct Args {
     /// mission (room for clocks that disagree a little).
     #[arg(long, env = "COORDINATOR_LEASE_GRACE", default_value_t = 1.0)]
     lease_grace: f64,
+}
+
+/// The share of a CPU limit plans may use when `--planner-cpu` is not given.
+const PLANNER_SHARE_OF_LIMIT: f64 = 0.5;
+
+/// What `--planner-cpu` says.
+#[derive(Debug, Clone, Copy)]
+enum PlannerCpu {
+    Cores(f64),
+    Unlimited,
+}
+
+fn parse_planner_cpu(text: &str) -> Result<PlannerCpu, String> {
+    if text == "unlimited" {
+        return Ok(PlannerCpu::Unlimited);
+    }
+    match text.parse::<f64>() {
+        Ok(cores) if cores.is_finite() && cores >= 0.001 && cores <= MAX_PLANNER_THREADS as f64 => {
+            Ok(PlannerCpu::Cores(cores))
+        }
+        _ => Err(format!("expected `unlimited` or a number of cores from 0.001 to {MAX_PLANNER_THREADS}")),
+    }
+}
+
+/// The planning threads' CPU budget: the flag's, or a share of the
+/// cgroup's limit.
+fn planner_cpu(flag: Option<PlannerCpu>) -> Option<f64> {
+    let cores = match flag {
+        Some(PlannerCpu::Cores(cores)) => Some(cores),
+        Some(PlannerCpu::Unlimited) => None,
+        None => coordinator::cpu_limit::cgroup_cpu_limit().map(|limit| limit * PLANNER_SHARE_OF_LIMIT),
+    };
+    match cores {
+        Some(cores) => tracing::info!(cores, "planning threads keep to a CPU budget"),
+        None => tracing::info!("planning threads have no CPU budget"),
+    }
+    cores
 }
 
 /// The replica settings the flags give, checked.
@@ -215,6 +259,7 @@ async fn main() -> anyhow::Result<()> {
             .background_planner_threads
             .unwrap_or(defaults.background_planner_threads)
             .max(1),
+        planner_cpu: planner_cpu(args.planner_cpu),
         ..defaults
     };
     let http = match args.http {

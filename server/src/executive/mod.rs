@@ -34,7 +34,7 @@ mod writer;
 pub use ownership::{ReplicaSettings, keep_leases_until};
 
 use mission::Mission;
-use planner::{MissionCell, Planner};
+use planner::{MissionCell, Planner, PlannerSettings};
 use writer::Writer;
 
 use crate::metrics::Metrics;
@@ -50,6 +50,11 @@ pub struct ExecutiveSettings {
     /// the planning threads' low priority does not protect the requests on
     /// every host (it did not in this project's 2-core sandbox).
     pub background_planner_threads: usize,
+    /// CPU the planning threads may use on average, in cores; `None`: as
+    /// much as they can get. Under a CPU limit (a container's quota) a plan
+    /// that spends a period's quota at once makes every request wait for
+    /// the next period; a budget below the limit spreads the plans out.
+    pub planner_cpu: Option<f64>,
     /// Most missions at once.
     pub max_missions: usize,
     /// Most robots in one mission.
@@ -75,6 +80,7 @@ impl Default for ExecutiveSettings {
         Self {
             planner_threads: cores(),
             background_planner_threads: cores().saturating_sub(1).max(1),
+            planner_cpu: None,
             max_missions: 1_000,
             max_robots_per_mission: 1_000,
             max_total_cells: 400_000_000,
@@ -278,11 +284,9 @@ impl Executive {
         let planner = Planner::new(
             writer.clone(),
             settings.clock.clone(),
-            settings.planner_threads,
-            settings.background_planner_threads,
+            PlannerSettings::from(&settings),
             Arc::clone(&next_task_id),
             Arc::clone(&metrics),
-            settings.min_plan_interval,
         );
         let tokens = store.robot_tokens().await?.into_iter().collect();
         let executive = Self {

@@ -34,8 +34,11 @@ use crate::domain::Timestamp;
 use crate::error::Error;
 use crate::metrics::Metrics;
 
+mod budget;
 mod turns;
 
+use budget::PlannerBudget;
+use exploration::workers::{Pace, Unpaced};
 use turns::{Turn, Turns};
 
 /// How many times a plan that no longer fits is made again before the
@@ -110,6 +113,33 @@ impl MissionCell {
 /// A job for the planning threads.
 type Job = Box<dyn FnOnce() + Send>;
 
+/// What holds the planning threads back: a CPU budget, or nothing.
+pub(crate) type SharedPace = Arc<dyn Pace + Send + Sync>;
+
+/// How the planner plans.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct PlannerSettings {
+    /// Threads one plan may use.
+    pub(crate) threads: usize,
+    /// Plans made off the request path at once (see [`background_budget`]).
+    pub(crate) background: usize,
+    /// Least time between two plans of a mission for map news alone.
+    pub(crate) min_gap: std::time::Duration,
+    /// CPU the planning threads may use on average, in cores.
+    pub(crate) cpu: Option<f64>,
+}
+
+impl From<&super::ExecutiveSettings> for PlannerSettings {
+    fn from(s: &super::ExecutiveSettings) -> Self {
+        Self {
+            threads: s.planner_threads,
+            background: s.background_planner_threads,
+            min_gap: s.min_plan_interval,
+            cpu: s.planner_cpu,
+        }
+    }
+}
+
 /// The threads plans run on, at the lowest scheduling priority: on a busy
 /// machine the request path (the async workers, the store) goes first, and
 /// plans take what is left.
@@ -119,11 +149,14 @@ struct PlanThreads {
 }
 
 impl PlanThreads {
-    fn start(threads: usize) -> Self {
+    /// `threads` threads, each charging `pace` after each job (the part of
+    /// a plan outside its parallel pieces).
+    fn start(threads: usize, pace: &SharedPace) -> Self {
         let (jobs, queue) = std::sync::mpsc::channel::<Job>();
         let queue = Arc::new(std::sync::Mutex::new(queue));
         for k in 0..threads {
             let queue = Arc::clone(&queue);
+            let pace = Arc::clone(pace);
             let spawned = std::thread::Builder::new().name(format!("planner-{k}")).spawn(move || {
                 // Not allowed to lower itself (a sandbox): it plans at normal priority.
                 if let Err(e) = thread_priority::set_current_thread_priority(thread_priority::ThreadPriority::Min) {
@@ -133,6 +166,7 @@ impl PlanThreads {
                     let job = queue.lock().unwrap_or_else(|e| e.into_inner()).recv();
                     let Ok(job) = job else { return };
                     job();
+                    pace.piece_done();
                 }
             });
             if let Err(e) = spawned {
@@ -158,6 +192,8 @@ impl PlanThreads {
 #[derive(Debug)]
 pub(crate) struct Planner {
     threads_pool: PlanThreads,
+    /// Handed to every plan's searches.
+    pace: SharedPace,
     writer: Writer,
     clock: Clock,
     /// Threads one plan may use.
@@ -182,15 +218,19 @@ impl Planner {
     pub(crate) fn new(
         writer: Writer,
         clock: Clock,
-        threads: usize,
-        background: usize,
+        settings: PlannerSettings,
         task_ids: Arc<AtomicU64>,
         metrics: Arc<Metrics>,
-        min_gap: std::time::Duration,
     ) -> Arc<Self> {
+        let PlannerSettings { threads, background, min_gap, cpu } = settings;
         let background = background_budget(threads, background);
+        let pace: SharedPace = match cpu {
+            Some(cores) => Arc::new(PlannerBudget::new(cores, metrics.planner_paced_seconds.clone())),
+            None => Arc::new(Unpaced),
+        };
         Arc::new(Self {
-            threads_pool: PlanThreads::start(threads.max(1)),
+            threads_pool: PlanThreads::start(threads.max(1), &pace),
+            pace,
             writer,
             turns: Turns::new(background, clock.clone()),
             clock,
@@ -262,7 +302,7 @@ impl Planner {
             return Ok(());
         };
         let basis = mission.plan_basis();
-        let job = mission.planning_job(self.threads);
+        let job = mission.planning_job(self.threads).paced_by(Arc::clone(&self.pace));
         let started = std::time::Instant::now();
         let outcome = self.threads_pool.run(move || job.run()).await?;
         self.metrics.observe_plan(mission.record().spec.policy.name(), started.elapsed());
@@ -317,7 +357,8 @@ impl Planner {
                 let Some(reason) = mission.replan_reason_off_path(now, self.min_gap) else { return };
                 let threads = if self.running.load(Ordering::Acquire) > 0 { 1 } else { self.background };
                 let policy = mission.record().spec.policy.name();
-                (mission.planning_job(threads), mission.plan_basis(), reason, now, policy)
+                let job = mission.planning_job(threads).paced_by(Arc::clone(&self.pace));
+                (job, mission.plan_basis(), reason, now, policy)
             };
             self.running.fetch_add(1, Ordering::AcqRel);
             let started = std::time::Instant::now();
@@ -423,7 +464,7 @@ mod tests {
     use exploration::math::Point2;
     use exploration::policy::Capabilities;
 
-    use super::{MissionCell, Planner, background_budget};
+    use super::{MissionCell, Planner, PlannerSettings, background_budget};
     use crate::ExecutiveSettings;
     use crate::clock::Clock;
     use crate::domain::{Pose, RobotSpec, Timestamp};
@@ -432,6 +473,11 @@ mod tests {
     use crate::executive::writer::Writer;
     use crate::metrics::Metrics;
     use crate::store::{SqliteStore, Store};
+
+    /// One planning thread, unpaced.
+    fn one_thread() -> PlannerSettings {
+        PlannerSettings { threads: 1, background: 1, ..PlannerSettings::default() }
+    }
 
     /// A plan waits its turn before it takes its snapshot, so that what
     /// arrives during the wait (here a robot joining) is in the plan. Taken
@@ -461,7 +507,7 @@ mod tests {
         let metrics = Arc::new(Metrics::new());
         let ids = Arc::new(AtomicU64::new(0));
         let writer = Writer::new(store, Clock::default(), Arc::clone(&metrics));
-        let planner = Planner::new(writer, Clock::default(), 1, 1, ids, Arc::clone(&metrics), Default::default());
+        let planner = Planner::new(writer, Clock::default(), one_thread(), ids, Arc::clone(&metrics));
         let cell = Arc::new(MissionCell::new(mission));
         // Another mission's plan holds the only turn.
         let turn = planner.turns.try_take().unwrap();
@@ -521,7 +567,7 @@ mod tests {
         let writer = Writer::new(store, Clock::default(), Arc::clone(&metrics));
         let ids = Arc::new(AtomicU64::new(0));
         // One plan at a time.
-        let planner = Planner::new(writer, Clock::default(), 1, 1, ids, metrics, Default::default());
+        let planner = Planner::new(writer, Clock::default(), one_thread(), ids, metrics);
         let mut generations = Vec::new();
         for (cell, _) in &cells {
             generations.push(cell.lock().await.generation());

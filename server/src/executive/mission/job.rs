@@ -11,9 +11,11 @@ use exploration::cost::CostCache;
 use exploration::frontier::{FrontierCluster, FrontierMap, clusters};
 use exploration::grid::{Cell, CellRect, OccupancyGrid};
 use exploration::policy::{Bid as PolicyBid, CurrentTask, Plan, PlanningInput, Policy, RobotView};
+use exploration::workers::{Unpaced, Workers};
 
 use super::{Mission, RobotSlot, lifecycle};
 use crate::domain::{Leftover, RobotId, Rooms, TaskKind};
+use crate::executive::planner::SharedPace;
 
 /// Everything needed to run a policy off the mission's lock.
 #[derive(Debug)]
@@ -34,6 +36,8 @@ pub(crate) struct PlanningJob {
     /// No robot has sent a map yet: finding no frontier means nothing.
     nothing_known: bool,
     threads: usize,
+    /// What holds its threads back (see `planner::budget`).
+    pace: SharedPace,
     seed: u64,
 }
 
@@ -84,8 +88,14 @@ struct PlanningPart {
 }
 
 impl PlanningJob {
+    /// The same job, its threads held back by `pace`.
+    pub(crate) fn paced_by(self, pace: SharedPace) -> Self {
+        Self { pace, ..self }
+    }
+
     /// Runs the policy on every part; CPU-bound.
     pub(crate) fn run(self) -> JobOutcome {
+        let workers = Workers { threads: self.threads, pace: &*self.pace };
         let mut targets = vec![None; self.order.len()];
         let mut segmentation = None;
         let mut largest = 0;
@@ -97,7 +107,7 @@ impl PlanningJob {
                     grid: &part.grid,
                     clusters: &part.clusters,
                     robots: &part.robots,
-                    threads: self.threads,
+                    workers,
                     bids: &part.bids,
                     seed: self.seed,
                     reserved: &part.reserved,
@@ -137,7 +147,7 @@ impl PlanningJob {
                     &part.robots,
                     &self.forbidden,
                     cache,
-                    self.threads,
+                    workers,
                 );
                 complete &= remaining.is_exhausted();
                 let frame = part.grid.frame();
@@ -290,6 +300,7 @@ impl Mission {
             rooms: self.rooms.clone(),
             nothing_known: self.known_cells == 0,
             threads,
+            pace: Arc::new(Unpaced),
             // Randomized policies draw from the mission and its replanning count: reproducible.
             seed: self.record.id.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.record.replans,
         }
