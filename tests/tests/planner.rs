@@ -12,6 +12,22 @@ fn metric(text: &str, prefix: &str) -> f64 {
     text.lines().filter(|l| l.starts_with(prefix)).filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok()).sum()
 }
 
+/// Reads a robot's assignment stream until it carries a task. Bounded: a
+/// robot the planner never serves fails the test instead of hanging it.
+async fn until_assigned(stream: &mut tonic::Streaming<pb::Assignment>, seconds: u64) {
+    let assigned = async {
+        while let Some(assignment) = stream.message().await.unwrap() {
+            if assignment.task_id != 0 {
+                return;
+            }
+        }
+        panic!("the stream ended");
+    };
+    tokio::time::timeout(std::time::Duration::from_secs(seconds), assigned)
+        .await
+        .unwrap_or_else(|_| panic!("a task within {seconds} s"));
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn plans_arrive_on_the_streams_and_the_metrics_move() {
     let dir = tempfile::tempdir().unwrap();
@@ -52,16 +68,7 @@ async fn plans_arrive_on_the_streams_and_the_metrics_move() {
     }
     // The planner's targets arrive on every stream.
     for stream in &mut streams {
-        let assigned = async {
-            while let Some(assignment) = stream.message().await.unwrap() {
-                if assignment.task_id != 0 {
-                    return;
-                }
-            }
-            panic!("the stream ended");
-        };
-        // Bounded: a robot the planner never serves fails the test instead of hanging it.
-        tokio::time::timeout(std::time::Duration::from_secs(30), assigned).await.expect("a task within 30 s");
+        until_assigned(stream, 30).await;
     }
     let after = common::http_get(http, "/metrics").await;
     assert!(metric(&after, "coordinator_plan_seconds_count{name=\"minpos\"}") >= 1.0, "{after}");
@@ -114,15 +121,7 @@ async fn plans_on_a_cpu_budget_wait_for_it_and_still_arrive() {
         fleet.update_map(update(robot.id, 1, x, 0.5, vec![patch(0, 0, 120, 120, 0.1)])).await.unwrap();
     }
     for stream in &mut streams {
-        let assigned = async {
-            while let Some(assignment) = stream.message().await.unwrap() {
-                if assignment.task_id != 0 {
-                    return;
-                }
-            }
-            panic!("the stream ended");
-        };
-        tokio::time::timeout(std::time::Duration::from_secs(60), assigned).await.expect("a task within 60 s");
+        until_assigned(stream, 60).await;
     }
     let after = common::http_get(http, "/metrics").await;
     assert!(metric(&after, "coordinator_plan_seconds_count{name=\"burgard\"}") >= 1.0, "{after}");
