@@ -224,10 +224,7 @@ impl Planner {
     ) -> Arc<Self> {
         let PlannerSettings { threads, background, min_gap, cpu } = settings;
         let background = background_budget(threads, background);
-        let pace: SharedPace = match cpu {
-            Some(cores) => Arc::new(PlannerBudget::new(cores, metrics.planner_paced_seconds.clone())),
-            None => Arc::new(Unpaced),
-        };
+        let pace = pace_for(cpu, &metrics);
         Arc::new(Self {
             threads_pool: PlanThreads::start(threads.max(1), &pace),
             pace,
@@ -450,6 +447,21 @@ impl MadePlan<'_> {
     }
 }
 
+/// The planning threads' pace for a budget of `cpu` cores: none without
+/// one, or with one out of range (a library caller's NaN or zero).
+fn pace_for(cpu: Option<f64>, metrics: &Metrics) -> SharedPace {
+    match cpu {
+        Some(cores) if cores.is_finite() && cores >= budget::LEAST_CORES => {
+            Arc::new(PlannerBudget::new(cores, metrics.planner_paced_seconds.clone()))
+        }
+        Some(cores) => {
+            tracing::warn!(cores, least = budget::LEAST_CORES, "planner CPU budget out of range: none kept");
+            Arc::new(Unpaced)
+        }
+        None => Arc::new(Unpaced),
+    }
+}
+
 /// Plans made off the request path at once (and threads for one alone): at
 /// least one, and no more threads than one plan may use.
 fn background_budget(threads: usize, background: usize) -> usize {
@@ -609,6 +621,30 @@ mod tests {
             }
         }
         planner.shutdown().await;
+    }
+
+    /// A budget out of range keeps none: with zero cores, the first piece
+    /// of work would wait forever (or panic converting infinity).
+    #[test]
+    fn a_budget_out_of_range_holds_nothing_back() {
+        let metrics = Metrics::new();
+        for cores in [f64::NAN, 0.0, -1.0, f64::INFINITY, 1e-9] {
+            let pace = super::pace_for(Some(cores), &metrics);
+            let spin = std::time::Instant::now();
+            while spin.elapsed() < std::time::Duration::from_millis(10) {
+                std::hint::black_box(spin.elapsed());
+            }
+            pace.piece_done();
+        }
+        assert_eq!(metrics.planner_paced_seconds.get(), 0.0);
+        // In range, the same work is held back.
+        let pace = super::pace_for(Some(1.0), &metrics);
+        let spin = std::time::Instant::now();
+        while spin.elapsed() < std::time::Duration::from_millis(5) {
+            std::hint::black_box(spin.elapsed());
+        }
+        pace.piece_done();
+        assert!(metrics.planner_paced_seconds.get() > 0.0);
     }
 
     #[test]

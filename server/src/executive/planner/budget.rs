@@ -24,6 +24,10 @@ use prometheus_client::metrics::counter::Counter;
 /// a period's quota at once.
 pub(crate) const BURST: Duration = Duration::from_millis(2);
 
+/// The least budget kept, in cores: below it a plan of a second would wait
+/// for hours.
+pub(crate) const LEAST_CORES: f64 = 0.001;
+
 /// Holds the planning threads to `cores` of CPU on average.
 #[derive(Debug)]
 pub(crate) struct PlannerBudget {
@@ -34,7 +38,7 @@ pub(crate) struct PlannerBudget {
 }
 
 impl PlannerBudget {
-    /// A budget of `cores` (finite, positive), counting the time threads
+    /// A budget of `cores` (finite, at least [`LEAST_CORES`]), counting the time threads
     /// wait for it in `waited`.
     pub(crate) fn new(cores: f64, waited: Counter<f64, std::sync::atomic::AtomicU64>) -> Self {
         Self { cores, bucket: Mutex::new(Bucket::default()), waited }
