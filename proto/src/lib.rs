@@ -187,6 +187,17 @@ pub mod client {
         }
     }
 
+    /// The header in which the executive says how long to wait before
+    /// retrying a call it refused to shed load (gRPC's own name for it).
+    pub const RETRY_PUSHBACK_METADATA: &str = "grpc-retry-pushback-ms";
+
+    /// How long the executive asked to wait before retrying `status`'s call
+    /// (at most 10 s), if it did.
+    pub fn retry_pushback(status: &tonic::Status) -> Option<Duration> {
+        let ms = status.metadata().get(RETRY_PUSHBACK_METADATA)?.to_str().ok()?.parse::<u64>().ok()?;
+        Some(Duration::from_millis(ms.min(10_000)))
+    }
+
     /// An endpoint for `url`: TLS when the URL is `https://` or `tls` is
     /// given (then the URL must be `https://`).
     pub fn endpoint(url: &str, tls: Option<&ClientTls>) -> Result<Endpoint, tonic::transport::Error> {

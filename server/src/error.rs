@@ -2,6 +2,7 @@
 
 use exploration::fusion::PatchError;
 use exploration::policy::PolicyError;
+use exploration_proto::client::RETRY_PUSHBACK_METADATA;
 
 use crate::store::{FailureKind, StoreError};
 
@@ -127,7 +128,7 @@ pub const RETRY_PUSHBACK_MS: u64 = 100;
 pub fn elsewhere(message: String, owner: Option<&str>) -> tonic::Status {
     let mut status = tonic::Status::unavailable(message);
     let metadata = status.metadata_mut();
-    metadata.insert("grpc-retry-pushback-ms", RETRY_PUSHBACK_MS.into());
+    metadata.insert(RETRY_PUSHBACK_METADATA, RETRY_PUSHBACK_MS.into());
     if let Some(owner) = owner.and_then(|o| o.parse().ok()) {
         metadata.insert(exploration_proto::replicas::OWNER_METADATA, owner);
     }
@@ -137,6 +138,6 @@ pub fn elsewhere(message: String, owner: Option<&str>) -> tonic::Status {
 /// RESOURCE_EXHAUSTED with a retry hint (`grpc-retry-pushback-ms`).
 pub fn overloaded(message: String) -> tonic::Status {
     let mut status = tonic::Status::resource_exhausted(message);
-    status.metadata_mut().insert("grpc-retry-pushback-ms", RETRY_PUSHBACK_MS.into());
+    status.metadata_mut().insert(RETRY_PUSHBACK_METADATA, RETRY_PUSHBACK_MS.into());
     status
 }

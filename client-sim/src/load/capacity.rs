@@ -65,7 +65,19 @@ pub(super) async fn measure(
             ..Default::default()
         };
         let mut client = robot.client.clone();
-        async move { client.update_map(request).await.is_ok() }
+        async move {
+            match client.update_map(request).await {
+                Ok(_) => true,
+                // Refused to shed load: wait as asked, as the robots and
+                // the project's clients do, instead of asking again at once.
+                Err(status) => {
+                    if let Some(wait) = exploration_proto::client::retry_pushback(&status) {
+                        tokio::time::sleep(wait).await;
+                    }
+                    false
+                }
+            }
+        }
     })
     .await;
     let latency = Latency::of(&latency);

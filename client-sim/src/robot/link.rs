@@ -15,6 +15,7 @@ use exploration::grid::{Cell, OccupancyGrid};
 use exploration::policy::{Capabilities, compute_bids};
 use exploration::visibility::RangeSensor;
 use exploration_proto::Bearer;
+use exploration_proto::client::retry_pushback;
 use exploration_proto::v1 as pb;
 use exploration_proto::v1::fleet_client::FleetClient;
 
@@ -26,13 +27,6 @@ fn retryable(status: &Status) -> bool {
         status.code(),
         Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded | Code::ResourceExhausted
     )
-}
-
-/// How long the executive asked to wait before retrying a call it shed
-/// (`grpc-retry-pushback-ms`), if it did.
-fn pushback(status: &Status) -> Option<Duration> {
-    let ms = status.metadata().get("grpc-retry-pushback-ms")?.to_str().ok()?.parse::<u64>().ok()?;
-    Some(Duration::from_millis(ms.min(10_000)))
 }
 
 impl SimRobot {
@@ -356,7 +350,7 @@ where
                     return Err(RobotError::Unreachable { what, budget, status });
                 }
                 tracing::debug!(what, %status, "executive unreachable or busy; retrying");
-                tokio::time::sleep(pushback(&status).unwrap_or(backoff).max(backoff)).await;
+                tokio::time::sleep(retry_pushback(&status).unwrap_or(backoff).max(backoff)).await;
                 backoff = (backoff * 2).min(Duration::from_millis(500));
             }
             Err(status) => return Err(RobotError::Rpc { what, status }),
