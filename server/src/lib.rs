@@ -23,6 +23,7 @@ use tokio_util::sync::CancellationToken;
 
 use exploration_proto::v1 as pb;
 
+pub mod admission;
 pub mod auth;
 pub mod clock;
 pub mod connections;
@@ -65,6 +66,9 @@ pub struct Config {
     pub connections: ConnectionLimits,
     /// When the patch log is folded into map snapshots.
     pub compaction: Compaction,
+    /// When robots' calls are refused because a queue stands (see
+    /// [`admission`]); `None` (the default): never.
+    pub shedding: Option<admission::QueueDelay>,
 }
 
 impl Config {
@@ -79,6 +83,7 @@ impl Config {
             tls: None,
             connections: ConnectionLimits::default(),
             compaction: Compaction::default(),
+            shedding: None,
         }
     }
 }
@@ -236,6 +241,7 @@ pub async fn run_with(
             return Err(e.into());
         }
     };
+    let admission = admission::AdmissionLayer::new(config.shedding, clock.clone(), Arc::clone(&metrics));
     let sweeper = tokio::spawn(sweep_until(executive.clone(), clock, streams_end.clone()));
     let lease_keeper = tokio::spawn(executive::keep_leases_until(executive.clone(), streams_end.clone()));
     let holds: store::compact::Holds = {
@@ -316,6 +322,7 @@ pub async fn run_with(
     let serve = server
         .layer(connections::ActivityLayer)
         .layer(metrics::RpcMetricsLayer(Arc::clone(&metrics)))
+        .layer(admission)
         .layer(run_to_end::RunToEndLayer)
         .add_service(health_service)
         .add_service(reflection)

@@ -1,0 +1,340 @@
+//! Refusing robots' calls while a queue stands, instead of letting it grow.
+//!
+//! When robots send more than the executive can answer, calls wait: for a
+//! core, for their mission, for the disk. A burst that drains is harmless;
+//! a queue that stands only makes every call late. The test is CoDel's
+//! (Nichols and Jacobson, "Controlling Queue Delay", ACM Queue 10(5), 2012),
+//! applied to calls instead of packets: a queue stands when no call has
+//! been answered within the *target* for a whole *interval*, while some
+//! were in flight. Periodic stalls (a CPU quota's throttled part of each
+//! period) never look like one, because the calls made between them go
+//! through within the target. As CoDel remembers its drop rate, the test
+//! remembers overload: the first queue must stand five intervals, so that
+//! one slow fsync at ordinary rates refuses nothing, but within fifty
+//! intervals of a refusal one interval is enough.
+//!
+//! Each of the robots' frequent calls (map updates, heartbeats, bids) has
+//! its own test: most heartbeats only say where a robot is and never wait
+//! for the disk, so they would hide a queue of map updates behind them.
+//! While a queue stands, calls of its kind are refused as they arrive with
+//! RESOURCE_EXHAUSTED and a retry hint, before their request is decoded,
+//! so that the CPU and the disk go to the calls admitted. It is deemed gone
+//! at the first call answered within the target, or as soon as none of its
+//! kind is in flight. Nothing refused was applied, so nothing acknowledged
+//! is lost. The mission queue limit
+//! ([`crate::ExecutiveSettings::max_queued_per_mission`]) still bounds one
+//! busy mission among idle ones, which these process-wide tests do not see.
+//!
+//! It is off unless asked for (`--shed-target-ms`). Robots that send at
+//! their own rates gain from it under a CPU limit, where at twice the
+//! saturation point it halved the map updates' p99; but callers that send
+//! again as soon as they are answered (a fleet manager relaying as fast as
+//! it can, the capacity phase of `fleet-sim load`) hold a queue standing
+//! by design, and there it cost a tenth to a third of the updates answered
+//! (docs/benchmarks.md).
+
+use std::pin::Pin;
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll};
+use std::time::Duration;
+
+use tokio::time::Instant;
+
+use crate::clock::Clock;
+use crate::metrics::Metrics;
+
+/// The calls tested and refused: the robots' frequent ones.
+const ROBOT_CALLS: [&str; 3] =
+    ["/exploration.v1.Fleet/UpdateMap", "/exploration.v1.Fleet/Heartbeat", "/exploration.v1.Fleet/SubmitBids"];
+
+/// When a queue stands (see the module).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct QueueDelay {
+    /// A call answered within this shows there is no standing queue.
+    pub target: Duration,
+    /// How long no call may be answered within the target before calls
+    /// are refused (five times as long for a first queue).
+    pub interval: Duration,
+}
+
+/// One kind of call in flight, and since when a queue may have stood.
+#[derive(Debug)]
+pub struct StandingQueue {
+    delay: QueueDelay,
+    state: Mutex<QueueState>,
+}
+
+/// A first queue must stand this many intervals before calls are
+/// refused: a stall of the disk or of the process at ordinary rates
+/// (127 ms once in a minute at 1 000 robots' real rates) is not overload.
+const FIRST_INTERVALS: u32 = 5;
+
+/// For this many intervals after a refusal a queue that stands one
+/// interval is refused again: overload that came back. (With ten, runs at
+/// twice the saturation point refused 3–9 % of the map updates instead of
+/// about a third, and kept most of their p99.)
+const MEMORY_INTERVALS: u32 = 50;
+
+#[derive(Debug)]
+struct QueueState {
+    in_flight: usize,
+    /// The last time there was surely no standing queue: nothing in
+    /// flight, or a call answered within the target.
+    calm_at: Instant,
+    /// When a call was last refused.
+    refused_at: Option<Instant>,
+}
+
+impl StandingQueue {
+    /// No call in flight yet.
+    pub fn new(delay: QueueDelay, now: Instant) -> Self {
+        Self { delay, state: Mutex::new(QueueState { in_flight: 0, calm_at: now, refused_at: None }) }
+    }
+
+    /// How long a queue must stand before calls are refused: one interval
+    /// soon after the last refusal, [`FIRST_INTERVALS`] otherwise.
+    fn patience(&self, state: &QueueState, now: Instant) -> Duration {
+        let memory = self.delay.interval.saturating_mul(MEMORY_INTERVALS);
+        match state.refused_at {
+            Some(at) if now.saturating_duration_since(at) <= memory => self.delay.interval,
+            _ => self.delay.interval.saturating_mul(FIRST_INTERVALS),
+        }
+    }
+
+    /// Whether a call arriving `now` is admitted; if so, it is in flight
+    /// until [`Self::answered`].
+    pub fn admit(&self, now: Instant) -> bool {
+        let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        if state.in_flight == 0 {
+            state.calm_at = now;
+        } else if now.saturating_duration_since(state.calm_at) >= self.patience(&state, now) {
+            state.refused_at = Some(now);
+            return false;
+        }
+        state.in_flight += 1;
+        true
+    }
+
+    /// An admitted call was answered `now`, having arrived at `arrived`.
+    pub fn answered(&self, arrived: Instant, now: Instant) {
+        let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        state.in_flight = state.in_flight.saturating_sub(1);
+        if state.in_flight == 0 || now.saturating_duration_since(arrived) < self.delay.target {
+            state.calm_at = state.calm_at.max(now);
+        }
+    }
+}
+
+/// Refuses robots' calls while a queue of their kind stands (see the
+/// module); without a [`QueueDelay`] it admits every call.
+#[derive(Debug, Clone)]
+pub struct AdmissionLayer {
+    /// One per kind of call in [`ROBOT_CALLS`].
+    queues: Vec<(&'static str, Arc<StandingQueue>)>,
+    clock: Clock,
+    metrics: Arc<Metrics>,
+}
+
+impl AdmissionLayer {
+    /// The test with `delay` on `clock`'s time, or none.
+    pub fn new(delay: Option<QueueDelay>, clock: Clock, metrics: Arc<Metrics>) -> Self {
+        let queues = match delay {
+            Some(delay) => ROBOT_CALLS.map(|path| (path, Arc::new(StandingQueue::new(delay, clock.now())))).to_vec(),
+            None => Vec::new(),
+        };
+        Self { queues, clock, metrics }
+    }
+}
+
+impl<S> tower::Layer<S> for AdmissionLayer {
+    type Service = Admission<S>;
+
+    fn layer(&self, inner: S) -> Self::Service {
+        Admission { inner, layer: self.clone() }
+    }
+}
+
+/// See [`AdmissionLayer`].
+#[derive(Debug, Clone)]
+pub struct Admission<S> {
+    inner: S,
+    layer: AdmissionLayer,
+}
+
+/// An admitted call in flight; answered when dropped, also when its
+/// caller stops waiting (the call itself runs to its end regardless).
+struct InFlight {
+    queue: Arc<StandingQueue>,
+    clock: Clock,
+    arrived: Instant,
+}
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        self.queue.answered(self.arrived, self.clock.now());
+    }
+}
+
+type BoxFuture<T> = Pin<Box<dyn std::future::Future<Output = T> + Send>>;
+
+impl<S, B> tower::Service<http::Request<B>> for Admission<S>
+where
+    S: tower::Service<http::Request<B>, Response = http::Response<tonic::body::Body>>,
+    S::Future: Send + 'static,
+    S::Error: Send + 'static,
+{
+    type Response = S::Response;
+    type Error = S::Error;
+    type Future = BoxFuture<Result<Self::Response, S::Error>>;
+
+    fn poll_ready(&mut self, cx: &mut Context<'_>) -> Poll<Result<(), Self::Error>> {
+        self.inner.poll_ready(cx)
+    }
+
+    fn call(&mut self, request: http::Request<B>) -> Self::Future {
+        let path = request.uri().path();
+        let Some(queue) = self.layer.queues.iter().find(|(p, _)| *p == path).map(|(_, q)| Arc::clone(q)) else {
+            return Box::pin(self.inner.call(request));
+        };
+        let arrived = self.layer.clock.now();
+        if !queue.admit(arrived) {
+            self.layer.metrics.shed("standing queue");
+            let status = crate::error::overloaded(format!(
+                "{} calls have been answered late for a while (none within {:?}): refused to shed load; retry after \
+                 the hint",
+                path.trim_start_matches('/'),
+                queue.delay.target
+            ));
+            return Box::pin(std::future::ready(Ok(status.into_http())));
+        }
+        let in_flight = InFlight { queue, clock: self.layer.clock.clone(), arrived };
+        let response = self.inner.call(request);
+        Box::pin(async move {
+            let response = response.await;
+            drop(in_flight);
+            response
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ms(n: u64) -> Duration {
+        Duration::from_millis(n)
+    }
+
+    fn queue(start: Instant) -> StandingQueue {
+        StandingQueue::new(QueueDelay { target: ms(20), interval: ms(100) }, start)
+    }
+
+    /// Calls arrive every ms from `from` to `to` and each is answered
+    /// `wait` later; returns the times (ms) of the refused ones.
+    fn steady(q: &StandingQueue, start: Instant, from: u64, to: u64, wait: u64) -> Vec<u64> {
+        let mut admitted = std::collections::VecDeque::new();
+        let mut refused = Vec::new();
+        for t in from..to {
+            let now = start + ms(t);
+            while admitted.front().is_some_and(|&a| a + wait <= t) {
+                let a = admitted.pop_front().unwrap();
+                q.answered(start + ms(a), start + ms(a + wait));
+            }
+            if q.admit(now) {
+                admitted.push_back(t);
+            } else {
+                refused.push(t);
+            }
+        }
+        for a in admitted {
+            q.answered(start + ms(a), start + ms(a + wait));
+        }
+        refused
+    }
+
+    #[test]
+    fn calls_that_overlap_but_go_through_in_time_are_all_admitted() {
+        let start = Instant::now();
+        let q = queue(start);
+        // Always about 15 in flight, each answered within the target.
+        assert_eq!(steady(&q, start, 0, 2_000, 15), Vec::<u64>::new());
+    }
+
+    #[test]
+    fn a_first_queue_is_refused_after_five_intervals_and_a_returning_one_after_one() {
+        let start = Instant::now();
+        let q = queue(start);
+        // Every call waits 30 ms, over the target: calm at 0 (nothing in
+        // flight), never since.
+        let refused = steady(&q, start, 0, 700, 30);
+        assert_eq!(refused.first(), Some(&500), "a first queue stands five intervals");
+        // Refused calls are not in flight: the admitted ones drain, the
+        // last at 529 ms, and with nothing in flight the next is admitted.
+        assert!(refused.contains(&528));
+        assert!(!refused.contains(&529), "nothing in flight ends the refusals");
+        // The queue forms again at once: within the memory, one interval is
+        // enough.
+        let again = refused.iter().find(|&&t| t > 529).copied();
+        assert_eq!(again, Some(629));
+        // Over fifty intervals after the last refusal, five again.
+        let later = 700 + 5_001;
+        let refused = steady(&q, start, later, later + 700, 30);
+        assert_eq!(refused.first(), Some(&(later + 500)));
+    }
+
+    #[test]
+    fn one_call_on_time_ends_the_refusals() {
+        let start = Instant::now();
+        let q = queue(start);
+        assert!(q.admit(start), "a call that will be stuck");
+        assert!(q.admit(start + ms(495)));
+        assert!(!q.admit(start + ms(500)), "one call in flight for five intervals, none on time");
+        q.answered(start + ms(495), start + ms(505));
+        assert!(q.admit(start + ms(506)), "one answered in 10 ms, though the first is still in flight");
+    }
+
+    #[test]
+    fn stalls_shorter_than_five_intervals_refuse_nothing_at_first() {
+        let start = Instant::now();
+        let q = queue(start);
+        // Calls every ms; at 1 s the process stalls for 400 ms: calls then
+        // are answered when it ends.
+        let mut in_flight = Vec::new();
+        for t in 0..3_000u64 {
+            let now = start + ms(t);
+            let answer = if (1_000..1_400).contains(&t) { 1_401 } else { t + 2 };
+            in_flight.retain(|&(a, at)| {
+                let due = at <= t;
+                if due {
+                    q.answered(start + ms(a), start + ms(at));
+                }
+                !due
+            });
+            assert!(q.admit(now), "refused at {t} ms");
+            in_flight.push((t, answer));
+        }
+    }
+
+    #[test]
+    fn a_cpu_quotas_throttled_periods_refuse_nothing() {
+        // A quarter-core quota: the process runs 25 ms of every 100 and is
+        // frozen for the rest. Calls arriving while it is frozen are
+        // answered 1 ms after it runs again, the others within 1 ms.
+        let start = Instant::now();
+        let q = queue(start);
+        let mut in_flight: Vec<(u64, u64)> = Vec::new();
+        for t in (0..5_000u64).step_by(2) {
+            in_flight.retain(|&(a, at)| {
+                let due = at <= t;
+                if due {
+                    q.answered(start + ms(a), start + ms(at));
+                }
+                !due
+            });
+            let phase = t % 100;
+            let answer = if phase < 25 { t + 1 } else { t + 101 - phase };
+            assert!(q.admit(start + ms(t)), "refused at {t} ms");
+            in_flight.push((t, answer));
+        }
+    }
+}
