@@ -82,13 +82,22 @@ pub(super) async fn drive(
     let mut seen_completed = false;
     let mut requests = JoinSet::new();
     let mut assignment = robot.assignment.clone();
+    let mut stream_followed = true;
     loop {
         let due = next_heartbeat.min(next_map);
         if due >= until {
             break;
         }
-        tokio::time::sleep_until(due.into()).await;
-        let now = Instant::now();
+        // Each assignment is looked at as it arrives: an arrival is answered
+        // by the first next task, which a later plan may replace before the
+        // robot's next call (at a tenth of the real rates, 5 s later).
+        let assigned = tokio::select! {
+            () = tokio::time::sleep_until(due.into()) => false,
+            changed = assignment.changed(), if stream_followed => {
+                stream_followed = changed.is_ok();
+                true
+            }
+        };
         let current = assignment.borrow_and_update().clone();
         let target = current.as_ref().filter(|(a, _)| a.task_id != 0).and_then(|(a, _)| Some((a.task_id, a.target?)));
         let explores = current.as_ref().is_some_and(|(a, _)| {
@@ -113,7 +122,11 @@ pub(super) async fn drive(
                 }
             }
         }
+        if assigned {
+            continue;
+        }
         // Move towards the target at the robot's speed.
+        let now = Instant::now();
         let dt = now.duration_since(last_move).as_secs_f64();
         last_move = now;
         let mut arrived = None;
