@@ -117,3 +117,18 @@ async fn map_updates(
 ) -> u64 {
     missions.get_mission(pb::GetMissionRequest { mission_id: id }).await.unwrap().into_inner().map_updates
 }
+
+/// Shedding settings out of range are refused at start, naming the flag.
+#[test]
+fn absurd_shedding_settings_refuse_to_start() {
+    let dir = tempfile::tempdir().unwrap();
+    for (args, says) in [
+        (["--shed-target-ms", "60001"], "--shed-target-ms must be 0 (off) to 60000"),
+        (["--shed-interval-ms", "0"], "--shed-interval-ms must be 1 to 60000"),
+        (["--shed-interval-ms", "1000000"], "--shed-interval-ms must be 1 to 60000"),
+    ] {
+        let (ok, stderr) = coordinator_exits(&args, &dir.path().join("t.db"));
+        assert!(!ok, "{args:?} must not start");
+        assert!(stderr.contains(says), "{stderr}");
+    }
+}

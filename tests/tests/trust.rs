@@ -5,10 +5,9 @@
 mod common;
 
 use std::collections::HashSet;
-use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::{TestExecutive, create_mission, patch, register, update};
+use common::{TestExecutive, coordinator_exits, create_mission, patch, register, update};
 use exploration_proto::v1 as pb;
 use tonic::Code;
 
@@ -325,30 +324,6 @@ async fn quotas_hold_when_many_missions_are_created_at_once() {
     let listed = missions.list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner().missions;
     assert_eq!(listed.len(), 10);
     exec.stop().await;
-}
-
-/// Runs the `coordinator` binary with `args` until it exits (it is killed
-/// if it is still serving after a minute); returns its success and stderr.
-fn coordinator_exits(args: &[&str], db: &std::path::Path) -> (bool, String) {
-    let mut child = Command::new(common::binary("coordinator"))
-        .args(["--listen", "127.0.0.1:0", "--db"])
-        .arg(db)
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .env("RUST_BACKTRACE", "0")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let deadline = std::time::Instant::now() + Duration::from_secs(60);
-    while child.try_wait().unwrap().is_none() {
-        if std::time::Instant::now() > deadline {
-            child.kill().unwrap();
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let output = child.wait_with_output().unwrap();
-    (output.status.success(), String::from_utf8_lossy(&output.stderr).into_owned())
 }
 
 /// Defect 5: a second coordinator on the same file started, each saw only its

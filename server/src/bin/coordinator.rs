@@ -88,9 +88,9 @@ struct Args {
     /// Refuse robots' calls (map updates, heartbeats, bids, each kind on its
     /// own) at once with RESOURCE_EXHAUSTED and a retry hint while none has
     /// been answered within this many milliseconds for five times
-    /// --shed-interval-ms (once after a refusal), some being in flight: a
-    /// queue that stands (CoDel's test). 20 suits 1 000 robots on two cores
-    /// under a CPU limit; 0 (the default): never refuse for that.
+    /// --shed-interval-ms (for one within fifty of a refusal), some being in
+    /// flight: a queue that stands (CoDel's test). 20 suits 1 000 robots on
+    /// two cores under a CPU limit; 0 (the default): never refuse for that.
     #[arg(long, env = "COORDINATOR_SHED_TARGET_MS", default_value_t = 0)]
     shed_target_ms: u64,
     /// See --shed-target-ms.
