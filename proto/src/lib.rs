@@ -248,5 +248,22 @@ pub mod client {
             assert!(plaintext_token_warning("https://10.0.0.5:50051", token).is_none());
             assert!(plaintext_token_warning("http://10.0.0.5:50051", None).is_none());
         }
+
+        /// The hint comes from the network: anything but a number of
+        /// milliseconds is no hint, and a huge one is held to 10 s.
+        #[test]
+        fn a_retry_hint_is_read_only_when_it_is_a_sane_number() {
+            let hinted = |value: &str| {
+                let mut status = tonic::Status::resource_exhausted("busy");
+                status.metadata_mut().insert(RETRY_PUSHBACK_METADATA, value.parse().unwrap());
+                retry_pushback(&status)
+            };
+            assert_eq!(retry_pushback(&tonic::Status::resource_exhausted("busy")), None);
+            assert_eq!(hinted("100"), Some(Duration::from_millis(100)));
+            assert_eq!(hinted("18446744073709551615"), Some(Duration::from_secs(10)));
+            for garbage in ["", "-5", "1e3", "abc", "99999999999999999999999"] {
+                assert_eq!(hinted(garbage), None, "{garbage:?}");
+            }
+        }
     }
 }
