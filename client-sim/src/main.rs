@@ -139,6 +139,10 @@ struct LoadArgs {
     /// Write the report as JSON to this file as well.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Send every call when due even after a refusal asked the robot to
+    /// hold its calls of that kind for a while (the retry hint).
+    #[arg(long)]
+    ignore_pushback: bool,
 }
 
 #[derive(Debug, Args)]
@@ -445,6 +449,7 @@ async fn load(args: LoadArgs) -> anyhow::Result<()> {
         capacity: seconds(args.capacity, "--capacity")?,
         capacity_callers: args.capacity_callers,
         cell_encoding: args.cell_encoding,
+        honour_pushback: !args.ignore_pushback,
     };
     let report = client_sim::load::run(&config).await?;
     eprint!("{}", report.summary());

@@ -17,8 +17,10 @@
 //! its own test: most heartbeats only say where a robot is and never wait
 //! for the disk, so they would hide a queue of map updates behind them.
 //! While a queue stands, calls of its kind are refused as they arrive with
-//! RESOURCE_EXHAUSTED and a retry hint, before their request is decoded,
-//! so that the CPU and the disk go to the calls admitted. It is deemed gone
+//! RESOURCE_EXHAUSTED, before their request is decoded, so that the CPU
+//! and the disk go to the calls admitted, and with a retry hint of ten
+//! intervals, long enough for a robot sending at 1–2 Hz to hold a call or
+//! two of that kind (the project's clients and `fleet-sim load` honour it). It is deemed gone
 //! at the first call answered within the target, or as soon as none of its
 //! kind is in flight. Nothing refused was applied, so nothing acknowledged
 //! is lost. The mission queue limit
@@ -74,6 +76,15 @@ const FIRST_INTERVALS: u32 = 5;
 /// twice the saturation point refused 3–9 % of the map updates instead of
 /// about a third, and kept most of their p99.)
 const MEMORY_INTERVALS: u32 = 50;
+
+/// A refused caller is asked to hold its calls of that kind this many
+/// intervals (a second at the default interval). Robots send each kind at
+/// 1–2 Hz, so a shorter hint would hold nothing back; and a refusal still
+/// costs the executive about half of what an admitted call does (the
+/// transport), so the excess must stop at its senders, not at the door:
+/// refused but sent again on schedule, twice the saturation point leaves
+/// no CPU for the calls admitted (docs/benchmarks.md).
+const HOLD_INTERVALS: u32 = 10;
 
 #[derive(Debug)]
 struct QueueState {
@@ -199,12 +210,16 @@ where
         let arrived = self.layer.clock.now();
         if !queue.admit(arrived) {
             self.layer.metrics.shed("standing queue");
-            let status = crate::error::overloaded(format!(
-                "{} calls have been answered late for a while (none within {:?}): refused to shed load; retry after \
-                 the hint",
-                path.trim_start_matches('/'),
-                queue.delay.target
-            ));
+            let hold = queue.delay.interval.saturating_mul(HOLD_INTERVALS);
+            let status = crate::error::overloaded_for(
+                format!(
+                    "{} calls have been answered late for a while (none within {:?}): refused to shed load; hold \
+                     calls of this kind for the hint ({hold:?})",
+                    path.trim_start_matches('/'),
+                    queue.delay.target
+                ),
+                hold,
+            );
             return Box::pin(std::future::ready(Ok(status.into_http())));
         }
         let in_flight = InFlight { queue, clock: self.layer.clock.clone(), arrived };

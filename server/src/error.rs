@@ -137,7 +137,14 @@ pub fn elsewhere(message: String, owner: Option<&str>) -> tonic::Status {
 
 /// RESOURCE_EXHAUSTED with a retry hint (`grpc-retry-pushback-ms`).
 pub fn overloaded(message: String) -> tonic::Status {
+    overloaded_for(message, std::time::Duration::from_millis(RETRY_PUSHBACK_MS))
+}
+
+/// RESOURCE_EXHAUSTED asking the caller to wait `wait` (whole
+/// milliseconds, at least one) before it calls again.
+pub fn overloaded_for(message: String, wait: std::time::Duration) -> tonic::Status {
+    let ms = u64::try_from(wait.as_millis()).unwrap_or(u64::MAX).max(1);
     let mut status = tonic::Status::resource_exhausted(message);
-    status.metadata_mut().insert(RETRY_PUSHBACK_METADATA, RETRY_PUSHBACK_MS.into());
+    status.metadata_mut().insert(RETRY_PUSHBACK_METADATA, ms.into());
     status
 }

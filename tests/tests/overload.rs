@@ -74,7 +74,9 @@ async fn map_updates_are_refused_while_one_is_stuck_and_admitted_once_it_is_answ
     time.advance(Duration::from_millis(1));
     let refused = fleet.update_map(send(probe.id, 2)).await.expect_err("refused once five intervals have passed");
     assert_eq!(refused.code(), Code::ResourceExhausted, "{refused:?}");
-    assert!(refused.metadata().get("grpc-retry-pushback-ms").is_some(), "refused with a retry hint");
+    // Long enough for a robot sending at 1-2 Hz to hold a call or two.
+    let hint = exploration_proto::client::retry_pushback(&refused);
+    assert_eq!(hint, Some(INTERVAL * 10), "refused with a hint of ten intervals: {refused:?}");
     assert!(refused.message().contains("UpdateMap calls have been answered late"), "{}", refused.message());
     let beat = pb::HeartbeatRequest {
         robot_id: idle.id,

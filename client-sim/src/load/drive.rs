@@ -12,6 +12,7 @@ use tokio_util::sync::CancellationToken;
 use tonic::Code;
 
 use exploration::math::Point2;
+use exploration_proto::client::retry_pushback;
 use exploration_proto::v1 as pb;
 
 use super::report::{Recorder, TRIGGER_GRACE, Triggers};
@@ -55,6 +56,51 @@ pub(super) async fn follow(
     }
 }
 
+/// Until when the executive asked a robot to hold one kind of call (the
+/// retry hint of a refusal), shared by the robot and its calls in flight.
+#[derive(Debug, Default)]
+struct Hold(Mutex<Option<Instant>>);
+
+impl Hold {
+    /// Whether a call due at `due` must wait.
+    fn holds(&self, due: Instant) -> bool {
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).is_some_and(|until| due < until)
+    }
+
+    /// After `status` answered a call at `now`: hold until its hint, if it
+    /// has one, has passed.
+    fn after(&self, status: &tonic::Status, now: Instant) {
+        if let Some(wait) = retry_pushback(status) {
+            let mut until = self.0.lock().unwrap_or_else(|e| e.into_inner());
+            *until = Some(until.map_or(now + wait, |u| u.max(now + wait)));
+        }
+    }
+}
+
+/// Map patches held back at most, the newest kept: a hint holds at most
+/// 10 s, ten patches at the real rate.
+const HELD_PATCHES: usize = 64;
+
+/// Where a robot was at the map updates it held or had refused with a
+/// hint: their footprints go with its next update, as a robot would send
+/// what it saw meanwhile.
+#[derive(Debug, Default)]
+struct Unsent(Mutex<Vec<Point2>>);
+
+impl Unsent {
+    fn push(&self, at: Point2) {
+        let mut unsent = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        if unsent.len() == HELD_PATCHES {
+            unsent.remove(0);
+        }
+        unsent.push(at);
+    }
+
+    fn take(&self) -> Vec<Point2> {
+        std::mem::take(&mut *self.0.lock().unwrap_or_else(|e| e.into_inner()))
+    }
+}
+
 /// Drives one robot until `until`: moves it, and sends its heartbeats and
 /// map updates when they are due, each on its own task (open-loop).
 pub(super) async fn drive(
@@ -83,6 +129,8 @@ pub(super) async fn drive(
     let mut requests = JoinSet::new();
     let mut assignment = robot.assignment.clone();
     let mut stream_followed = true;
+    let (heartbeat_hold, map_hold) = (Arc::new(Hold::default()), Arc::new(Hold::default()));
+    let unsent = Arc::new(Unsent::default());
     loop {
         let due = next_heartbeat.min(next_map);
         if due >= until {
@@ -146,6 +194,10 @@ pub(super) async fn drive(
         }
         if due == next_heartbeat {
             next_heartbeat += heartbeat_every;
+            if config.honour_pushback && heartbeat_hold.holds(due) {
+                recorder.held("Heartbeat");
+                continue;
+            }
             let (state, task_id) = match (arrived, target) {
                 (Some(task), _) => (pb::RobotState::Arrived, task),
                 (None, Some((task, _))) => (pb::RobotState::Moving, task),
@@ -165,22 +217,41 @@ pub(super) async fn drive(
                 task_id,
                 ..Default::default()
             };
-            let (mut client, recorder) = (robot.client.clone(), Arc::clone(&recorder));
+            let (mut client, recorder, hold) =
+                (robot.client.clone(), Arc::clone(&recorder), Arc::clone(&heartbeat_hold));
             requests.spawn(async move {
-                let code = client.heartbeat(request).await.map_or_else(|s| s.code(), |_| Code::Ok);
+                let code = match client.heartbeat(request).await {
+                    Ok(_) => Code::Ok,
+                    Err(status) => {
+                        hold.after(&status, Instant::now());
+                        status.code()
+                    }
+                };
                 recorder.record("Heartbeat", due, code);
             });
         } else {
             next_map += map_every;
+            if config.honour_pushback && map_hold.holds(due) {
+                recorder.held("UpdateMap");
+                unsent.push(position);
+                continue;
+            }
             let seq = robot.next_seq.fetch_add(1, Ordering::AcqRel);
+            let patches = unsent
+                .take()
+                .into_iter()
+                .chain([position])
+                .map(|at| footprint(&world, at, config.sensor_range_m, config.cell_encoding))
+                .collect();
             let request = pb::UpdateMapRequest {
                 robot_id: robot.id,
                 seq,
                 pose: Some(pose_at(position, heading)),
-                patches: vec![footprint(&world, position, config.sensor_range_m, config.cell_encoding)],
+                patches,
                 ..Default::default()
             };
-            let (robot, recorder) = (Arc::clone(&robot), Arc::clone(&recorder));
+            let (robot, recorder, hold) = (Arc::clone(&robot), Arc::clone(&recorder), Arc::clone(&map_hold));
+            let (unsent, honour) = (Arc::clone(&unsent), config.honour_pushback);
             requests.spawn(async move {
                 let code = match robot.client.clone().update_map(request).await {
                     Ok(_) => {
@@ -188,7 +259,13 @@ pub(super) async fn drive(
                         robot.acked_seq.fetch_max(seq, Ordering::AcqRel);
                         Code::Ok
                     }
-                    Err(status) => status.code(),
+                    Err(status) => {
+                        if honour && retry_pushback(&status).is_some() {
+                            hold.after(&status, Instant::now());
+                            unsent.push(position);
+                        }
+                        status.code()
+                    }
                 };
                 recorder.record("UpdateMap", due, code);
             });
@@ -204,5 +281,47 @@ pub(super) async fn drive(
         } else {
             triggers.unanswered += 1;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn refused_for(ms: &str) -> tonic::Status {
+        let mut status = tonic::Status::resource_exhausted("busy");
+        status.metadata_mut().insert(exploration_proto::client::RETRY_PUSHBACK_METADATA, ms.parse().unwrap());
+        status
+    }
+
+    #[test]
+    fn a_hint_holds_calls_until_it_has_passed_and_the_longer_of_two_wins() {
+        let hold = Hold::default();
+        let t0 = Instant::now();
+        let ms = Duration::from_millis;
+        assert!(!hold.holds(t0), "nothing is held before a refusal");
+        hold.after(&tonic::Status::resource_exhausted("no hint"), t0);
+        assert!(!hold.holds(t0), "a refusal without a hint holds nothing");
+        hold.after(&refused_for("1000"), t0);
+        assert!(hold.holds(t0 + ms(999)));
+        assert!(!hold.holds(t0 + ms(1000)), "held until the hint, not beyond");
+        // A shorter hint answered later does not shorten the hold.
+        hold.after(&refused_for("100"), t0 + ms(500));
+        assert!(hold.holds(t0 + ms(999)));
+        hold.after(&refused_for("1000"), t0 + ms(500));
+        assert!(hold.holds(t0 + ms(1499)) && !hold.holds(t0 + ms(1500)));
+    }
+
+    #[test]
+    fn unsent_patches_are_kept_newest_first_up_to_the_cap() {
+        let unsent = Unsent::default();
+        for k in 0..HELD_PATCHES + 3 {
+            unsent.push(Point2::new(k as f64, 0.0));
+        }
+        let kept = unsent.take();
+        assert_eq!(kept.len(), HELD_PATCHES);
+        assert_eq!(kept[0].x, 3.0, "the oldest go first");
+        assert_eq!(kept[HELD_PATCHES - 1].x, (HELD_PATCHES + 2) as f64);
+        assert!(unsent.take().is_empty(), "taken once");
     }
 }

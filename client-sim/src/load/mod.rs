@@ -11,6 +11,11 @@
 //! line, towards the targets they are given; reaching one is a trigger whose
 //! delay until the next assignment arrives on the stream is measured too.
 //!
+//! A refusal with a retry hint (`grpc-retry-pushback-ms`) is the one
+//! answer a robot heeds: it holds its calls of that kind until the hint has
+//! passed, as the project's clients do, and the calls so held are counted
+//! beside the answered ones (`--ignore-pushback` sends every call when due).
+//!
 //! A second phase measures capacity, closed-loop: map updates and, in the
 //! same run, an empty unary call (the health check), the transport's limit.
 //!
@@ -96,6 +101,11 @@ pub struct LoadConfig {
     pub capacity_callers: Option<usize>,
     /// How the map patches carry their cells.
     pub cell_encoding: CellEncoding,
+    /// Whether a robot refused with a retry hint holds its calls of that
+    /// kind until the hint has passed, as the project's clients do (its
+    /// map patches then go with its next update). Without it every call is
+    /// sent when due, refused or not.
+    pub honour_pushback: bool,
 }
 
 /// How a load's map patches carry their cells.

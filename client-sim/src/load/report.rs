@@ -47,6 +47,9 @@ pub struct CallReport {
     pub latency_ms: Latency,
     /// Answers by status (`Ok` included).
     pub statuses: BTreeMap<String, u64>,
+    /// Calls not sent when due because the executive had asked the robot to
+    /// hold them (a retry hint on a refusal).
+    pub held: u64,
 }
 
 /// The executive process's use of the machine.
@@ -167,7 +170,10 @@ impl LoadReport {
         );
         for (name, call) in &self.calls {
             let l = &call.latency_ms;
-            let statuses: Vec<String> = call.statuses.iter().map(|(k, v)| format!("{k} {v}")).collect();
+            let mut statuses: Vec<String> = call.statuses.iter().map(|(k, v)| format!("{k} {v}")).collect();
+            if call.held > 0 {
+                statuses.push(format!("held {}", call.held));
+            }
             out += &format!(
                 "{name:<15} {:>9.1} {:>8.2} {:>8.2} {:>8.2} {:>8.2}  {}\n",
                 call.throughput_per_s,
@@ -320,11 +326,21 @@ impl Triggers {
 pub(super) struct Recorder {
     latency: Mutex<BTreeMap<&'static str, Histogram<u64>>>,
     statuses: Mutex<BTreeMap<(&'static str, String), u64>>,
+    held: Mutex<BTreeMap<&'static str, u64>>,
 }
 
 impl Recorder {
     pub(super) fn new() -> Self {
-        Self { latency: Mutex::new(BTreeMap::new()), statuses: Mutex::new(BTreeMap::new()) }
+        Self {
+            latency: Mutex::new(BTreeMap::new()),
+            statuses: Mutex::new(BTreeMap::new()),
+            held: Mutex::new(BTreeMap::new()),
+        }
+    }
+
+    /// A `call` due was held back at the executive's request.
+    pub(super) fn held(&self, call: &'static str) {
+        *self.held.lock().unwrap_or_else(|e| e.into_inner()).entry(call).or_default() += 1;
     }
 
     pub(super) fn record(&self, call: &'static str, due: Instant, code: Code) {
@@ -349,6 +365,9 @@ impl Recorder {
             if let Some(histogram) = latency.get(call) {
                 report.latency_ms = Latency::of(histogram);
             }
+        }
+        for (call, held) in self.held.lock().unwrap_or_else(|e| e.into_inner()).iter() {
+            calls.entry((*call).to_owned()).or_default().held = *held;
         }
         calls
     }

@@ -11,7 +11,7 @@ import socket
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import grpc
@@ -37,12 +37,14 @@ def free_port() -> int:
 class Coordinator:
     """One coordinator process; restartable on the same port and database."""
 
-    def __init__(self, folder: Path, token: str | None) -> None:
+    def __init__(self, folder: Path, token: str | None, flags: Sequence[str] = ()) -> None:
         self.binary = coordinator_binary()
         self.port = free_port()
         self.db = folder / "coordinator.db"
         self.log = folder / "coordinator.log"
         self.token = token
+        self.flags = list(flags)
+        self.metrics_url: str | None = None
         self.process: subprocess.Popen[bytes] | None = None
 
     @property
@@ -53,6 +55,7 @@ class Coordinator:
         command = [str(self.binary), "--listen", self.address, "--db", str(self.db)]
         if self.token:
             command += ["--operator-token", self.token]
+        command += self.flags
         with self.log.open("ab") as log:
             self.process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
         self._wait_until_accepting(deadline=time.monotonic() + 30)
@@ -94,8 +97,8 @@ class Coordinator:
             self.process = None
 
 
-def serve(folder: Path, token: str | None) -> Iterator[Coordinator]:
-    c = Coordinator(folder, token)
+def serve(folder: Path, token: str | None, flags: Sequence[str] = ()) -> Iterator[Coordinator]:
+    c = Coordinator(folder, token, flags)
     c.start()
     try:
         yield c
@@ -113,6 +116,18 @@ def coordinator(tmp_path: Path) -> Iterator[Coordinator]:
 def open_coordinator(tmp_path: Path) -> Iterator[Coordinator]:
     """An executive that runs open, as on a developer's loopback."""
     yield from serve(tmp_path, None)
+
+
+@pytest.fixture
+def shedding_coordinator(tmp_path: Path) -> Iterator[Coordinator]:
+    """An open executive that refuses robots' calls once a queue of their
+    kind has stood 5 ms (a target and interval of 1 ms: a retry hint of
+    10 ms), with its metrics at ``metrics_url``."""
+    http = free_port()
+    flags = ["--shed-target-ms", "1", "--shed-interval-ms", "1", "--http", f"127.0.0.1:{http}"]
+    for c in serve(tmp_path, None, flags):
+        c.metrics_url = f"http://127.0.0.1:{http}/metrics"
+        yield c
 
 
 def wait_for(predicate, what: str, within_s: float = 30.0):  # noqa: ANN001, ANN201

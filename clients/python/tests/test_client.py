@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import sqlite3
 import subprocess
 import sys
+import threading
+import urllib.request
 
 import grpc
 import numpy as np
@@ -158,3 +161,63 @@ def test_events_are_read_page_by_page_oldest_first(open_coordinator: Coordinator
         assert [e.kind for e in paged].count("mission_paused") == 3
         assert paged == whole
         assert [e.id for e in paged] == sorted({e.id for e in paged}), "oldest first, none twice"
+
+
+def shed_by_standing_queue(metrics_url: str) -> float:
+    with urllib.request.urlopen(metrics_url, timeout=5) as page:
+        for line in page.read().decode().splitlines():
+            if line.startswith('coordinator_shed_total{name="standing queue"}'):
+                return float(line.split()[-1])
+    return 0.0
+
+
+def test_a_robot_refused_by_an_executive_shedding_load_waits_the_hint_and_is_answered(
+    shedding_coordinator: Coordinator,
+) -> None:
+    c = shedding_coordinator
+    assert c.metrics_url is not None
+    pose = (0.5, 0.5, 0.0)
+    grid = np.full((5, 5), 0.05)
+    with Executive(c.address) as executive:
+        mission = executive.create_mission("shedding", frame(20, 10), policy="nearest")
+        stuck, robot, probe = (executive.register_robot(mission.id, name, pose) for name in ("stuck", "r", "probe"))
+        stuck.update_map(grid, (0, 0), pose)
+        # Another program holds SQLite's write lock: the next update is
+        # applied but stays in flight until it is durable, and a queue of
+        # map updates stands.
+        lock = sqlite3.connect(c.db, isolation_level=None)
+        lock.execute("BEGIN IMMEDIATE")
+        results: dict[str, object] = {}
+
+        def send(name: str, sender) -> None:  # noqa: ANN001
+            results[name] = sender.update_map(grid, (5, 0), pose)
+
+        threading.Thread(target=send, args=("stuck", stuck)).start()
+        # Raw calls (no retries) until one is refused: the queue stands.
+        seq = 0
+        while True:
+            seq += 1
+            request = pb.UpdateMapRequest(
+                robot_id=probe.id, seq=seq, pose=pb.Pose(x=0.5, y=0.5), patches=[patch_from_grid(grid, 10, 0)]
+            )
+            try:
+                executive.fleet.UpdateMap(request, timeout=0.2)
+            except grpc.RpcError as error:
+                if error.code() == grpc.StatusCode.RESOURCE_EXHAUSTED:
+                    hint = dict(error.trailing_metadata())["grpc-retry-pushback-ms"]
+                    assert hint == "10", "ten intervals"
+                    break
+                assert error.code() == grpc.StatusCode.DEADLINE_EXCEEDED, error
+        refused = shed_by_standing_queue(c.metrics_url)
+        sender = threading.Thread(target=send, args=("robot", robot))
+        sender.start()
+        # The client is refused too, waits the hint and asks again, for as
+        # long as the lock is held; without the retry its call would fail.
+        wait_for(lambda: shed_by_standing_queue(c.metrics_url) >= refused + 2, "the client refused twice")
+        assert "robot" not in results, "answered while the queue stood"
+        lock.execute("ROLLBACK")
+        lock.close()
+        sender.join(timeout=30)
+        answered = results.get("robot")
+        assert isinstance(answered, pb.UpdateMapResponse) and answered.applied_seq == 1, results
+        wait_for(lambda: "stuck" in results, "the stuck update answered once the lock is released")

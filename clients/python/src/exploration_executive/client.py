@@ -35,6 +35,23 @@ from .replicas import Replicas, addresses_of
 #: is restarting, draining, or shedding load.
 RETRYABLE = {grpc.StatusCode.UNAVAILABLE, grpc.StatusCode.RESOURCE_EXHAUSTED}
 
+#: The trailer in which an executive shedding load says how long to wait.
+RETRY_PUSHBACK = "grpc-retry-pushback-ms"
+
+
+def retry_pushback_s(error: grpc.RpcError) -> float | None:
+    """How long the executive asked to wait before calling again, seconds
+    (at most 10), if it did."""
+    trailers = error.trailing_metadata() if hasattr(error, "trailing_metadata") else None
+    for key, value in trailers or ():
+        if key == RETRY_PUSHBACK:
+            try:
+                ms = int(value)
+            except ValueError:
+                return None
+            return min(ms, 10_000) / 1000 if ms >= 0 else None
+    return None
+
 
 @dataclass(frozen=True)
 class Bid:
@@ -64,7 +81,10 @@ class Executive:
     once its lease on the mission has run out, and a lone executive that
     restarts answers again. ``create_mission`` is not tried again after an
     UNAVAILABLE that named no holder (it may have been carried out); the
-    next call goes to the next address.
+    next call goes to the next address. A call refused RESOURCE_EXHAUSTED
+    with a retry hint (an executive shedding load) was not carried out: it
+    is tried again once the hint has passed, within the same
+    ``failover_s``, so that an overloaded executive gets fewer calls.
     """
 
     def __init__(
@@ -124,7 +144,15 @@ class Executive:
             try:
                 return stub(request, metadata=self.metadata, timeout=self.timeout_s)
             except grpc.RpcError as error:
-                if error.code() != grpc.StatusCode.UNAVAILABLE or self.closed:
+                if self.closed:
+                    raise
+                if error.code() == grpc.StatusCode.RESOURCE_EXHAUSTED:
+                    wait = retry_pushback_s(error)
+                    if wait is None or time.monotonic() + wait >= deadline:
+                        raise
+                    time.sleep(wait)
+                    continue
+                if error.code() != grpc.StatusCode.UNAVAILABLE:
                     raise
                 named = self._replicas.follow(error)
                 if (not named and not idempotent) or time.monotonic() >= deadline:
