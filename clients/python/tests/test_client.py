@@ -192,32 +192,40 @@ def test_a_robot_refused_by_an_executive_shedding_load_waits_the_hint_and_is_ans
         def send(name: str, sender) -> None:  # noqa: ANN001
             results[name] = sender.update_map(grid, (5, 0), pose)
 
-        threading.Thread(target=send, args=("stuck", stuck)).start()
-        # Raw calls (no retries) until one is refused: the queue stands.
-        seq = 0
-        while True:
-            seq += 1
-            request = pb.UpdateMapRequest(
-                robot_id=probe.id, seq=seq, pose=pb.Pose(x=0.5, y=0.5), patches=[patch_from_grid(grid, 10, 0)]
-            )
-            try:
-                executive.fleet.UpdateMap(request, timeout=0.2)
-            except grpc.RpcError as error:
-                if error.code() == grpc.StatusCode.RESOURCE_EXHAUSTED:
-                    hint = dict(error.trailing_metadata())["grpc-retry-pushback-ms"]
-                    assert hint == "10", "ten intervals"
-                    break
-                assert error.code() == grpc.StatusCode.DEADLINE_EXCEEDED, error
-        refused = shed_by_standing_queue(c.metrics_url)
+        stuck_sender = threading.Thread(target=send, args=("stuck", stuck))
         sender = threading.Thread(target=send, args=("robot", robot))
-        sender.start()
-        # The client is refused too, waits the hint and asks again, for as
-        # long as the lock is held; without the retry its call would fail.
-        wait_for(lambda: shed_by_standing_queue(c.metrics_url) >= refused + 2, "the client refused twice")
-        assert "robot" not in results, "answered while the queue stood"
-        lock.execute("ROLLBACK")
-        lock.close()
-        sender.join(timeout=30)
+        try:
+            stuck_sender.start()
+            # Raw calls (no retries) until one is refused: the queue stands.
+            # One that arrives before the queue has stood 5 ms is admitted and
+            # waits behind the lock too, until its deadline gives up on it.
+            seq = 0
+            while True:
+                seq += 1
+                request = pb.UpdateMapRequest(
+                    robot_id=probe.id, seq=seq, pose=pb.Pose(x=0.5, y=0.5), patches=[patch_from_grid(grid, 10, 0)]
+                )
+                try:
+                    executive.fleet.UpdateMap(request, timeout=0.2)
+                except grpc.RpcError as error:
+                    if error.code() == grpc.StatusCode.RESOURCE_EXHAUSTED:
+                        hint = dict(error.trailing_metadata())["grpc-retry-pushback-ms"]
+                        assert hint == "10", "ten intervals"
+                        break
+                    # grpcio reports a deadline passed in flight as either.
+                    assert error.code() in (grpc.StatusCode.DEADLINE_EXCEEDED, grpc.StatusCode.CANCELLED), error
+            refused = shed_by_standing_queue(c.metrics_url)
+            sender.start()
+            # The client is refused too, waits the hint and asks again, for as
+            # long as the lock is held; without the retry its call would fail.
+            wait_for(lambda: shed_by_standing_queue(c.metrics_url) >= refused + 2, "the client refused twice")
+            assert "robot" not in results, "answered while the queue stood"
+        finally:
+            lock.execute("ROLLBACK")
+            lock.close()
+            for thread in (stuck_sender, sender):
+                if thread.is_alive():
+                    thread.join(timeout=30)
         answered = results.get("robot")
         assert isinstance(answered, pb.UpdateMapResponse) and answered.applied_seq == 1, results
-        wait_for(lambda: "stuck" in results, "the stuck update answered once the lock is released")
+        assert "stuck" in results, "the stuck update is answered once the lock is released"
