@@ -131,6 +131,8 @@ pub(super) async fn drive(
     let mut stream_followed = true;
     let (heartbeat_hold, map_hold) = (Arc::new(Hold::default()), Arc::new(Hold::default()));
     let unsent = Arc::new(Unsent::default());
+    // An arrival whose heartbeat was not answered: reported again.
+    let lost_arrival: Arc<Mutex<Option<u64>>> = Arc::default();
     loop {
         let due = next_heartbeat.min(next_map);
         if due >= until {
@@ -177,6 +179,10 @@ pub(super) async fn drive(
         let now = Instant::now();
         let dt = now.duration_since(last_move).as_secs_f64();
         last_move = now;
+        let lost = lost_arrival.lock().unwrap_or_else(|e| e.into_inner()).take();
+        if lost.is_some() && lost == reported {
+            reported = None;
+        }
         let mut arrived = None;
         if let Some((task, goal)) = target {
             let goal = Point2::new(goal.x, goal.y);
@@ -205,8 +211,9 @@ pub(super) async fn drive(
             };
             if let Some(task) = arrived {
                 reported = Some(task);
-                // Arriving home or at a hold ends nothing the executive must answer.
-                if explores {
+                // Arriving home or at a hold ends nothing the executive must
+                // answer; an arrival reported again waits from the first report.
+                if explores && waiting.is_none_or(|(t, _)| t != task) {
                     waiting = Some((task, due));
                 }
             }
@@ -219,11 +226,15 @@ pub(super) async fn drive(
             };
             let (mut client, recorder, hold) =
                 (robot.client.clone(), Arc::clone(&recorder), Arc::clone(&heartbeat_hold));
+            let lost_arrival = Arc::clone(&lost_arrival);
             requests.spawn(async move {
                 let code = match client.heartbeat(request).await {
                     Ok(_) => Code::Ok,
                     Err(status) => {
                         hold.after(&status, Instant::now());
+                        if state == pb::RobotState::Arrived {
+                            *lost_arrival.lock().unwrap_or_else(|e| e.into_inner()) = Some(task_id);
+                        }
                         status.code()
                     }
                 };
