@@ -154,7 +154,7 @@ const LAG_PROBE: Duration = Duration::from_millis(5);
 /// queue of tasks), which is where they wait when the process has too
 /// little CPU for what it is sent. A timer set for [`LAG_PROBE`] wakes late
 /// by about as long, so the same test applies to its lateness: a queue
-/// stands when no wake-up has come within the target for the patience.
+/// stands when no wake-up has come within the target for an interval.
 /// While it stands every robot call is refused, of whatever kind.
 #[derive(Debug)]
 pub struct RuntimeLag {
@@ -231,6 +231,24 @@ impl AdmissionLayer {
     }
 }
 
+impl AdmissionLayer {
+    /// RESOURCE_EXHAUSTED for a `method` call refused for `reason` (the
+    /// metric's name), asking the caller to hold that kind of call for
+    /// [`HOLD_INTERVALS`] of `delay`.
+    fn refusal(
+        &self,
+        reason: &'static str,
+        method: &str,
+        why: String,
+        delay: QueueDelay,
+    ) -> http::Response<tonic::body::Body> {
+        self.metrics.shed(reason);
+        let hold = delay.interval.saturating_mul(HOLD_INTERVALS);
+        let message = format!("{why}: {method} refused to shed load; hold calls of this kind for the hint ({hold:?})");
+        crate::error::overloaded_for(message, hold).into_http()
+    }
+}
+
 impl<S> tower::Layer<S> for AdmissionLayer {
     type Service = Admission<S>;
 
@@ -281,33 +299,16 @@ where
         let Some(queue) = self.layer.queues.iter().find(|(p, _)| *p == path).map(|(_, q)| Arc::clone(q)) else {
             return Box::pin(self.inner.call(request));
         };
+        let method = path.trim_start_matches('/');
         if let Some(lag) = self.layer.lag.as_ref().filter(|lag| !lag.admit(Instant::now())) {
-            self.layer.metrics.shed("runtime lag");
-            let status = crate::error::overloaded_for(
-                format!(
-                    "the executive has too little CPU for what it is sent (its timers ran more than {:?} late for a \
-                     while): {} refused to shed load; hold calls of this kind for the hint",
-                    lag.delay.target,
-                    path.trim_start_matches('/'),
-                ),
-                lag.delay.interval.saturating_mul(HOLD_INTERVALS),
-            );
-            return Box::pin(std::future::ready(Ok(status.into_http())));
+            let why = format!("the executive's timers have run more than {:?} late for a while", lag.delay.target);
+            return Box::pin(std::future::ready(Ok(self.layer.refusal("runtime lag", method, why, lag.delay))));
         }
         let arrived = self.layer.clock.now();
         if !queue.admit(arrived) {
-            self.layer.metrics.shed("standing queue");
-            let hold = queue.delay.interval.saturating_mul(HOLD_INTERVALS);
-            let status = crate::error::overloaded_for(
-                format!(
-                    "{} calls have been answered late for a while (none within {:?}): refused to shed load; hold \
-                     calls of this kind for the hint ({hold:?})",
-                    path.trim_start_matches('/'),
-                    queue.delay.target
-                ),
-                hold,
-            );
-            return Box::pin(std::future::ready(Ok(status.into_http())));
+            let why =
+                format!("{method} calls have been answered late for a while (none within {:?})", queue.delay.target);
+            return Box::pin(std::future::ready(Ok(self.layer.refusal("standing queue", method, why, queue.delay))));
         }
         let in_flight = InFlight { queue, clock: self.layer.clock.clone(), arrived };
         let response = self.inner.call(request);
