@@ -149,6 +149,16 @@ impl StandingQueue {
 /// (two hundred wake-ups a second).
 const LAG_PROBE: Duration = Duration::from_millis(5);
 
+/// Lateness a timer has on a runtime that keeps up: tokio rounds a sleep up
+/// to its next millisecond tick. A smaller target would call every wake-up
+/// late.
+const LAG_RESOLUTION: Duration = Duration::from_millis(2);
+
+/// The shortest time without a wake-up in time that counts: a few timers'
+/// worth, since between two wake-ups none can come. A shorter interval
+/// would refuse between any two.
+const LAG_PATIENCE: Duration = Duration::from_millis(20);
+
 /// The queue no call's own time shows: calls that wait for a worker of the
 /// runtime before they reach this layer (in the sockets, in the runtime's
 /// queue of tasks), which is where they wait when the process has too
@@ -171,7 +181,7 @@ impl RuntimeLag {
 
     /// A timer woke `late` after its time, at `now`.
     pub fn woke(&self, late: Duration, now: Instant) {
-        if late < self.delay.target {
+        if late < self.delay.target.max(LAG_RESOLUTION) {
             let mut calm_at = self.calm_at.lock().unwrap_or_else(|e| e.into_inner());
             *calm_at = (*calm_at).max(now);
         }
@@ -185,7 +195,7 @@ impl RuntimeLag {
     /// second (docs/benchmarks.md).
     pub fn admit(&self, now: Instant) -> bool {
         let calm_at = *self.calm_at.lock().unwrap_or_else(|e| e.into_inner());
-        now.saturating_duration_since(calm_at) < self.delay.interval
+        now.saturating_duration_since(calm_at) < self.delay.interval.max(LAG_PATIENCE)
     }
 
     /// Sets the timer again and again, on the runtime this is called on,
@@ -479,6 +489,18 @@ mod tests {
         assert_eq!(refused.len(), 600 - (last_in_time as usize + 100), "and every call after");
         l.woke(ms(1), start + ms(600));
         assert!(l.admit(start + ms(601)), "one wake-up in time ends it");
+    }
+
+    #[test]
+    fn the_smallest_settings_do_not_call_a_runtime_that_keeps_up_late() {
+        // --shed-target-ms 1 --shed-interval-ms 1: timers wake a tick late,
+        // and an interval is shorter than the time between two of them.
+        let start = Instant::now();
+        let l = RuntimeLag::new(QueueDelay { target: ms(1), interval: ms(1) }, start);
+        assert!(timed(&l, start, 0, 2_000, |_| 1).is_empty());
+        // A runtime that does run late is still refused, 20 ms after the
+        // last wake-up in time (every 6 ms: … 1 998).
+        assert_eq!(timed(&l, start, 2_000, 2_100, |_| 30).first(), Some(&2_018));
     }
 
     #[test]
