@@ -229,3 +229,27 @@ def test_a_robot_refused_by_an_executive_shedding_load_waits_the_hint_and_is_ans
         answered = results.get("robot")
         assert isinstance(answered, pb.UpdateMapResponse) and answered.applied_seq == 1, results
         assert "stuck" in results, "the stuck update is answered once the lock is released"
+
+
+class _Refused(grpc.RpcError):
+    """An answer as grpcio raises it, with the trailers given."""
+
+    def __init__(self, *trailers: tuple[str, str]) -> None:
+        self._trailers = trailers
+
+    def trailing_metadata(self) -> tuple[tuple[str, str], ...]:
+        return self._trailers
+
+
+def test_the_retry_hint_is_read_at_its_worst_values() -> None:
+    from exploration_executive.client import retry_pushback_s
+
+    hint = "grpc-retry-pushback-ms"
+    assert retry_pushback_s(_Refused()) is None, "no trailer, no hint"
+    assert retry_pushback_s(_Refused(("other", "5"))) is None
+    assert retry_pushback_s(_Refused((hint, "250"))) == 0.25
+    assert retry_pushback_s(_Refused((hint, "0"))) == 0.0
+    for garbage in ("-1", "", "soon", "1e3", "\x00", "12ms"):
+        assert retry_pushback_s(_Refused((hint, garbage))) is None, repr(garbage)
+    assert retry_pushback_s(_Refused((hint, "9" * 40))) == 10.0, "held to 10 s"
+    assert retry_pushback_s(grpc.RpcError()) is None, "an error without trailers"

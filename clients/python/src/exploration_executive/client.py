@@ -147,10 +147,14 @@ class Executive:
                 if self.closed:
                     raise
                 if error.code() == grpc.StatusCode.RESOURCE_EXHAUSTED:
-                    wait = retry_pushback_s(error)
+                    hint = retry_pushback_s(error)
+                    # Never sooner than the growing pause: a hint of 0 from
+                    # the network must not turn this into a busy loop.
+                    wait = None if hint is None else max(hint, backoff)
                     if wait is None or time.monotonic() + wait >= deadline:
                         raise
                     time.sleep(wait)
+                    backoff = min(1.0, backoff * 2)
                     continue
                 if error.code() != grpc.StatusCode.UNAVAILABLE:
                     raise
