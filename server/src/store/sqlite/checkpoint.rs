@@ -80,18 +80,20 @@ async fn run(pool: SqlitePool, turn: WriterTurn, stop: CancellationToken) {
 /// One checkpoint beside the writer and, if the log has grown past
 /// [`REWIND_PAGES`], another in the writer's turn.
 async fn checkpoint_and_rewind(pool: &SqlitePool, turn: &WriterTurn) -> Result<(), sqlx::Error> {
-    if checkpoint(pool).await? > REWIND_PAGES {
+    if checkpoint(pool).await?.is_some_and(|log| log > REWIND_PAGES) {
         let _writer = turn.lock().await;
         checkpoint(pool).await?;
     }
     Ok(())
 }
 
-/// Runs one PASSIVE checkpoint; the log's size in pages.
-async fn checkpoint(pool: &SqlitePool) -> Result<i64, sqlx::Error> {
+/// Runs one PASSIVE checkpoint; the log's size in pages, or `None` if it
+/// could not run because another connection was checkpointing (SQLite then
+/// reports a log of -1 pages, which must not read as an empty log).
+async fn checkpoint(pool: &SqlitePool) -> Result<Option<i64>, sqlx::Error> {
     // (busy, log pages, pages checkpointed)
-    let (_, log, _): (i64, i64, i64) = sqlx::query_as("PRAGMA wal_checkpoint(PASSIVE)").fetch_one(pool).await?;
-    Ok(log)
+    let (busy, log, _): (i64, i64, i64) = sqlx::query_as("PRAGMA wal_checkpoint(PASSIVE)").fetch_one(pool).await?;
+    Ok((busy == 0).then_some(log))
 }
 
 #[cfg(test)]
@@ -101,6 +103,17 @@ mod tests {
     use crate::store::sqlite::Durability;
     use crate::store::sqlite::tests::store_with_mission;
     use crate::store::suite::note;
+
+    /// The log's size in pages, from a checkpoint that ran: the store's own
+    /// checkpointer, every [`PERIOD`], may be copying when the test asks.
+    async fn log_pages(pool: &SqlitePool) -> i64 {
+        loop {
+            if let Some(log) = checkpoint(pool).await.unwrap() {
+                return log;
+            }
+            tokio::task::yield_now().await;
+        }
+    }
 
     /// With SQLite's own checkpoints turned off, the log stays bounded by
     /// ours: it is rewound after each, however much is written.
@@ -120,7 +133,7 @@ mod tests {
             // checkpointer (every 200 ms) may have just rewound the log.
             assert!(size > 0, "round {round} wrote to the log");
             sizes.push(size);
-            checkpoint(&store.backend().pool).await.unwrap();
+            log_pages(&store.backend().pool).await;
         }
         // Unchecked, six rounds would make it six times the first round's
         // size (the background checkpoints may also have rewound it).
@@ -147,7 +160,7 @@ mod tests {
             store.commit(note(mission.id, i, big.clone())).await.unwrap();
         }
         let turn = store.backend().turn.clone();
-        assert!(checkpoint(&store.backend().pool).await.unwrap() > REWIND_PAGES, "the log passed the rewinding size");
+        assert!(log_pages(&store.backend().pool).await > REWIND_PAGES, "the log passed the rewinding size");
         let checkpoints = tokio::spawn({
             let (pool, turn) = (store.backend().pool.clone(), turn.clone());
             async move {
@@ -163,9 +176,14 @@ mod tests {
         checkpoints.await.unwrap();
 
         sqlx::query("COMMIT").execute(&mut reader).await.unwrap();
-        checkpoint_and_rewind(&store.backend().pool, &turn).await.unwrap();
+        // What checkpoint_and_rewind does in the writer's turn, made sure to
+        // run rather than meet the store's own checkpointer copying.
+        {
+            let _writer = turn.lock().await;
+            log_pages(&store.backend().pool).await;
+        }
         store.commit(note(mission.id, 320, "z".into())).await.unwrap();
-        let log = checkpoint(&store.backend().pool).await.unwrap();
+        let log = log_pages(&store.backend().pool).await;
         assert!(log < 16, "the log was not rewound once the reader had gone: {log} pages");
         assert_eq!(store.events(mission.id, 0, u32::MAX).await.unwrap().len(), 321);
     }
