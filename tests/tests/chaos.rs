@@ -52,7 +52,7 @@ async fn progress(url: &str) -> Option<u64> {
 async fn twenty_missions_survive_sigkill_at_random_moments() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("chaos.db");
-    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let port = common::free_port();
     let url = format!("http://127.0.0.1:{port}");
     let mut child = spawn_coordinator(port, &db, "error");
     wait_until_serving(&url, Duration::from_secs(30)).await;

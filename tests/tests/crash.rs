@@ -15,10 +15,7 @@ use exploration_proto::v1::missions_client::MissionsClient;
 async fn the_fleet_survives_a_killed_executive() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("crash.db");
-    let port = {
-        let probe = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        probe.local_addr().unwrap().port()
-    };
+    let port = common::free_port();
     let url = format!("http://127.0.0.1:{port}");
     let mut child = spawn_coordinator(port, &db, "warn");
     wait_until_serving(&url, Duration::from_secs(30)).await;

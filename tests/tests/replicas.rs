@@ -13,7 +13,8 @@ use std::time::{Duration, Instant};
 
 use client_sim::RunConfig;
 use common::{
-    binary, bundled_map, create_mission, mission_request, patch, register, registration, update, wait_until_serving,
+    binary, bundled_map, create_mission, free_port, mission_request, patch, register, registration, update,
+    wait_until_serving,
 };
 use exploration_proto::v1::fleet_client::FleetClient;
 use exploration_proto::v1::missions_client::MissionsClient;
@@ -55,10 +56,6 @@ impl Drop for Replica {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
 /// The replica holding `mission` now and its fencing token.

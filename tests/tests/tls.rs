@@ -20,8 +20,7 @@ const TOKEN: &str = "tls-operator-token-0001";
 async fn a_fleet_explores_through_tls_with_the_real_binaries() {
     let dir = tempfile::tempdir().unwrap();
     let pki = Pki::new(dir.path());
-    let free_port = || std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-    let (port, health_port) = (free_port(), free_port());
+    let (port, health_port) = (common::free_port(), common::free_port());
     let mut coordinator = Command::new(common::binary("coordinator"))
         .args(["--listen", &format!("127.0.0.1:{port}"), "--health-listen", &format!("127.0.0.1:{health_port}")])
         .arg("--db")

@@ -4,6 +4,7 @@ with its database in the test's temporary folder."""
 
 from __future__ import annotations
 
+import itertools
 import os
 import queue
 import signal
@@ -28,10 +29,24 @@ def coordinator_binary() -> Path:
     return path
 
 
+_next_port = itertools.count((os.getpid() * 997) % 12_000)
+
+
 def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A port nothing listens on, for the coordinator to be told to listen on.
+
+    Below Linux's ephemeral range (32768 and up), from which bind(0) picks and
+    the kernel gives outgoing connections their ports: a port from bind(0),
+    released for the coordinator, could be taken by a client socket first.
+    """
+    while True:
+        port = 20_000 + next(_next_port) % 12_000
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
 
 
 class Coordinator:

@@ -357,6 +357,28 @@ pub async fn wait_until_serving_tls(url: &str, tls: &exploration_proto::client::
     }
 }
 
+/// A port of 127.0.0.1 that nothing listens on, for a binary to be told to
+/// listen on. It lies below Linux's ephemeral range (32 768 and up), from
+/// which `bind(0)` picks and the kernel gives outgoing connections their
+/// ports: a port from `bind(0)`, released for the binary, could be taken
+/// by another test's client socket first (it was once in CI: "cannot listen
+/// on 127.0.0.1:37297: Address already in use"). Each test process takes
+/// its ports in turn from its own start in 20 000–32 000.
+pub fn free_port() -> u16 {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    const LOW: u32 = 20_000;
+    const SPAN: u32 = 12_000;
+    static NEXT: AtomicU32 = AtomicU32::new(0);
+    let start = std::process::id() * 997;
+    loop {
+        let port = LOW + start.wrapping_add(NEXT.fetch_add(1, Ordering::Relaxed)) % SPAN;
+        let port = u16::try_from(port).expect("below 32 000");
+        if std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
+            return port;
+        }
+    }
+}
+
 /// The `coordinator` binary serving `db` on 127.0.0.1:`port`, logging at `log`.
 pub fn spawn_coordinator(port: u16, db: &Path, log: &str) -> std::process::Child {
     std::process::Command::new(binary("coordinator"))
