@@ -184,7 +184,8 @@ impl RuntimeLag {
         Self { delay, calm_at: Mutex::new(now) }
     }
 
-    /// A timer woke `late` after its time, at `now`.
+    /// The probe came back `late` after its timer's time (woken, then
+    /// queued behind the waiting tasks), at `now`.
     pub fn woke(&self, late: Duration, now: Instant) {
         if late < self.delay.target.max(LAG_RESOLUTION) {
             let mut calm_at = self.calm_at.lock().unwrap_or_else(|e| e.into_inner());

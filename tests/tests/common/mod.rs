@@ -369,7 +369,7 @@ pub fn free_port() -> u16 {
     const LOW: u32 = 20_000;
     const SPAN: u32 = 12_000;
     static NEXT: AtomicU32 = AtomicU32::new(0);
-    let start = std::process::id() * 997;
+    let start = std::process::id().wrapping_mul(997);
     loop {
         let port = LOW + start.wrapping_add(NEXT.fetch_add(1, Ordering::Relaxed)) % SPAN;
         let port = u16::try_from(port).expect("below 32 000");
