@@ -23,6 +23,15 @@
 //!   (Bautin's Algorithm 2), a cluster no robot is heading to, such as the
 //!   later stops of another robot's tour; when every cluster has a robot, it
 //!   takes MinPos's choice (the least position, then the least cost).
+//! - **Places by the unknown behind** (`behind_m`; Solanas & García 2004
+//!   and Hu et al. 2020 divide the unknown among the robots): a cluster
+//!   takes up to the team's share of the unknown cells within `behind_m`
+//!   of it (a breadth-first wave through unknown cells from each cluster,
+//!   a cell counted for the wave that reaches it first), at least one. A
+//!   wide opening onto a large unexplored area then takes several helpers
+//!   and a pocket one; a robot sent where another already heads takes the
+//!   cluster's cell nearest to it that is out of the other's sensor range
+//!   (Burgard et al. 2005: robots that share a view gain less).
 //! - **Hysteresis** (Simmons et al. 2000 keep a robot's task unless a clearly
 //!   better one appears): the robot's current cluster costs it
 //!   `switch_margin` less, in its ownership, its tour and its helper choice.
@@ -30,9 +39,10 @@
 //! The target in a cluster is its cell nearest to the robot, as in MinPos.
 
 use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_METRES};
-use super::{ClusterCosts, Plan, PlanningInput, Policy, Target, cluster_cost_matrix};
+use super::{ClusterCosts, Plan, PlanningInput, Policy, RobotView, Target, cluster_cost_matrix};
 use crate::cost::{CostCache, CostMap, TraversalKind};
 use crate::frontier::FrontierCluster;
+use crate::grid::{Cell, OccupancyGrid, UNKNOWN};
 
 pub(super) const NAME: &str = "tours";
 
@@ -45,6 +55,14 @@ const POCKET_CELLS: ParamSpec = ParamSpec {
     default: 0.0,
     min: 0.0,
     max: 10_000.0,
+};
+
+const BEHIND_M: ParamSpec = ParamSpec {
+    name: "behind_m",
+    description: "helpers: a frontier cluster may take robots in proportion to the unknown area within this many metres behind it; 0 sends helpers only where nobody is heading",
+    default: 0.0,
+    min: 0.0,
+    max: 100.0,
 };
 
 const TOUR_LENGTH: ParamSpec = ParamSpec {
@@ -60,12 +78,13 @@ const TOUR_LENGTH: ParamSpec = ParamSpec {
 pub(super) const DESCRIPTOR: PolicyDescriptor = PolicyDescriptor {
     name: NAME,
     description: "ours: each robot is sent along the shortest tour through the frontiers it is closest to (Bautin et al. 2011, Kulich et al. 2011); robots closest nowhere take the frontiers nobody is heading to",
-    params: &[MIN_FRONTIER_SIZE, SWITCH_METRES, TOUR_LENGTH, POCKET_CELLS],
+    params: &[MIN_FRONTIER_SIZE, SWITCH_METRES, TOUR_LENGTH, POCKET_CELLS, BEHIND_M],
     build: |c| {
         Box::new(Tours {
             switch_margin: c.get("switch_margin"),
             tour_length: c.get("tour_length").round() as usize,
             pocket_cells: c.get("pocket_cells").round() as usize,
+            behind_m: c.get("behind_m"),
         })
     },
 };
@@ -82,6 +101,9 @@ pub struct Tours {
     /// Past the nearest, a tour's stops are the owned clusters of at most
     /// this many cells; 0 for any cluster.
     pub pocket_cells: usize,
+    /// Metres of unknown counted behind a cluster for its share of the
+    /// helpers; 0 for one robot per cluster.
+    pub behind_m: f64,
 }
 
 impl Default for Tours {
@@ -90,6 +112,7 @@ impl Default for Tours {
             switch_margin: SWITCH_METRES.default,
             tour_length: TOUR_LENGTH.default as usize,
             pocket_cells: POCKET_CELLS.default as usize,
+            behind_m: BEHIND_M.default,
         }
     }
 }
@@ -118,14 +141,22 @@ impl Policy for Tours {
                 }
             })
             .collect();
-        send_helpers(&matrix, &mut chosen);
+        let places = self.places_per_cluster(input);
+        send_helpers(&matrix, &places, &mut chosen);
+        let mut taken: Vec<Vec<Cell>> = vec![Vec::new(); input.clusters.len()];
         let targets = chosen
             .iter()
             .enumerate()
             .map(|(i, j)| {
                 let j = (*j)?;
                 let c = matrix[i][j]?;
-                Some(Target { cell: matrix.cell(i, j)?, utility: -c.score, path_cost: c.cost, gain_region: None })
+                let mut cell = matrix.cell(i, j)?;
+                if places[j] > 1 {
+                    let apart = input.grid.frame().cells_from_metres(input.robots[i].capabilities.sensor_range_m);
+                    cell = out_of_view(&input.robots[i], &input.clusters[j], cell, &taken[j], apart);
+                }
+                taken[j].push(cell);
+                Some(Target { cell, utility: -c.score, path_cost: c.cost, gain_region: None })
             })
             .collect();
         Plan::of(targets)
@@ -240,27 +271,108 @@ enum Wavefront {
     Compute(std::sync::Arc<crate::cost::TraversalMap>),
 }
 
-/// Robots that own no cluster: cheapest pair first onto the clusters no
-/// robot is heading to (Bautin et al. 2011, Algorithm 2); the rest take
+impl Tours {
+    /// How many robots each cluster may take before helpers look elsewhere:
+    /// one, or with `behind_m` set, the team's share of the unknown behind
+    /// it (a wide opening onto a large unexplored area takes several robots,
+    /// a pocket one; Solanas & García 2004 and Hu et al. 2020 divide the
+    /// unknown among robots in this spirit).
+    fn places_per_cluster(&self, input: &PlanningInput<'_>) -> Vec<usize> {
+        let clusters = input.clusters.len();
+        let radius = input.grid.frame().cells_from_metres(self.behind_m).round();
+        if radius < 1.0 {
+            return vec![1; clusters];
+        }
+        let behind = unknown_behind(input.grid, input.clusters, radius as u32);
+        let total: usize = behind.iter().sum();
+        if total == 0 {
+            return vec![1; clusters];
+        }
+        let team = input.robots.len() as f64;
+        behind.iter().map(|&area| ((team * area as f64 / total as f64).round() as usize).max(1)).collect()
+    }
+}
+
+/// The cluster's cell nearest to `preferred` that lies at least `apart`
+/// cells from every target already taken in it (Burgard et al. 2005: robots
+/// that share a view gain less), or `preferred` when there is none.
+fn out_of_view(robot: &RobotView, cluster: &FrontierCluster, preferred: Cell, taken: &[Cell], apart: f64) -> Cell {
+    let clear = |c: Cell| taken.iter().all(|&t| c.distance(t) >= apart);
+    if clear(preferred) {
+        return preferred;
+    }
+    cluster
+        .cells
+        .iter()
+        .copied()
+        .filter(|&c| clear(c) && robot.may_target(c))
+        .min_by(|a, b| a.distance(preferred).total_cmp(&b.distance(preferred)).then(a.cmp(b)))
+        .unwrap_or(preferred)
+}
+
+/// Per cluster, the unknown cells within `radius` steps of it (4-connected,
+/// through unknown cells only), each counted for the cluster whose
+/// breadth-first wave reaches it first (ties to the cluster listed first).
+fn unknown_behind(grid: &OccupancyGrid, clusters: &[FrontierCluster], radius: u32) -> Vec<usize> {
+    let frame = grid.frame();
+    let mut owner = vec![u32::MAX; frame.len()];
+    let mut behind = vec![0usize; clusters.len()];
+    let mut wave: std::collections::VecDeque<(Cell, u32, u32)> = std::collections::VecDeque::new();
+    let mut claim = |cell: Cell, j: u32, depth: u32, wave: &mut std::collections::VecDeque<(Cell, u32, u32)>| {
+        if !frame.contains(cell) || grid.value(cell) != UNKNOWN {
+            return;
+        }
+        let at = frame.index(cell);
+        if owner[at] == u32::MAX {
+            owner[at] = j;
+            behind[j as usize] += 1;
+            wave.push_back((cell, j, depth));
+        }
+    };
+    for (j, cluster) in clusters.iter().enumerate() {
+        for &cell in &cluster.cells {
+            for next in four_neighbours(cell) {
+                claim(next, j as u32, 1, &mut wave);
+            }
+        }
+    }
+    while let Some((cell, j, depth)) = wave.pop_front() {
+        if depth < radius {
+            for next in four_neighbours(cell) {
+                claim(next, j, depth + 1, &mut wave);
+            }
+        }
+    }
+    behind
+}
+
+fn four_neighbours(c: Cell) -> [Cell; 4] {
+    [Cell::new(c.x + 1, c.y), Cell::new(c.x - 1, c.y), Cell::new(c.x, c.y + 1), Cell::new(c.x, c.y - 1)]
+}
+
+/// Robots that own no cluster: cheapest pair first onto the clusters with
+/// a place left (`places[j]` robots heading to cluster j, one unless
+/// `behind_m` is set; Bautin et al. 2011, Algorithm 2); the rest take
 /// MinPos's choice, the least position and then the least score (Algorithm 3).
-fn send_helpers(matrix: &ClusterCosts, chosen: &mut [Option<usize>]) {
+fn send_helpers(matrix: &ClusterCosts, places: &[usize], chosen: &mut [Option<usize>]) {
     let n = chosen.len();
     let m = matrix.first().map_or(0, Vec::len);
-    let mut heading = vec![false; m];
+    let mut heading = vec![0usize; m];
     for j in chosen.iter().flatten() {
-        heading[*j] = true;
+        heading[*j] += 1;
     }
     let helpers: Vec<usize> = (0..n).filter(|&i| chosen[i].is_none()).collect();
     loop {
-        let free = &heading;
+        let full: Vec<bool> = (0..m).map(|j| heading[j] >= places.get(j).copied().unwrap_or(1)).collect();
+        let full = &full;
         let best = helpers
             .iter()
             .filter(|&&i| chosen[i].is_none())
-            .flat_map(|&i| (0..m).filter(move |&j| !free[j] && matrix[i][j].is_some()).map(move |j| (i, j)))
+            .flat_map(|&i| (0..m).filter(move |&j| !full[j] && matrix[i][j].is_some()).map(move |j| (i, j)))
             .min_by(|&(a, j), &(b, k)| score(matrix, a, j).total_cmp(&score(matrix, b, k)).then((a, j).cmp(&(b, k))));
         let Some((i, j)) = best else { break };
         chosen[i] = Some(j);
-        heading[j] = true;
+        heading[j] += 1;
     }
     for &i in &helpers {
         if chosen[i].is_some() {
@@ -404,6 +516,59 @@ mod tests {
         assert_eq!(kept[0], Some(Cell::new(18, 1)), "{kept:?}");
         let switched = plan_targets(&Tours { switch_margin: 1.0, ..Tours::default() }, &grid, &[heading]);
         assert_eq!(switched[0].map(|c| c.x), Some(1), "{switched:?}");
+    }
+
+    /// A room with a one-cell pocket in its floor (x = 5) and its right side
+    /// (x = 25) open onto a large unexplored area. Robot 0 is first at the
+    /// pocket, robot 1 at the opening; robot 2, first nowhere, is nearer
+    /// the pocket. One robot per cluster (and MinPos) sends it after robot
+    /// 0 into the pocket; counting the unknown behind each cluster sends it
+    /// to the opening, to a cell out of robot 1's sensor range from its
+    /// target.
+    #[test]
+    fn a_helper_goes_where_the_most_unknown_lies_behind_the_frontier() {
+        let grid = grid_from_picture(&[
+            "##########################??????????", //
+            "#.........................??????????", //
+            "#.........................??????????", //
+            "#.........................??????????", //
+            "#.........................??????????", //
+            "#.........................??????????", //
+            "#####?####################??????????", //
+        ]);
+        let robots = [robot(0, Cell::new(5, 3), 2.0), robot(1, Cell::new(22, 3), 2.0), robot(2, Cell::new(12, 3), 2.0)];
+        let in_pocket = |c: Option<Cell>| c.is_some_and(|c| c.y == 1 && (4..=6).contains(&c.x));
+        for one_each in [plan_with_defaults("tours", &grid, &robots), plan_targets(&MinPos::default(), &grid, &robots)]
+        {
+            assert!(in_pocket(one_each[0]) && in_pocket(one_each[2]), "both into the pocket: {one_each:?}");
+        }
+        let behind = plan_targets(&Tours { behind_m: 10.0, ..Tours::default() }, &grid, &robots);
+        assert!(in_pocket(behind[0]), "{behind:?}");
+        let (Some(first), Some(helper)) = (behind[1], behind[2]) else { panic!("{behind:?}") };
+        assert_eq!((first.x, helper.x), (25, 25), "both at the opening: {behind:?}");
+        assert!(first.distance(helper) >= 2.0, "out of each other's view: {behind:?}");
+    }
+
+    /// A corridor with one unknown cell beyond its left end and five beyond
+    /// its right: each cluster counts the unknown its wave reaches within
+    /// the radius.
+    #[test]
+    fn the_unknown_behind_a_cluster_is_counted_within_the_radius() {
+        let grid = grid_from_picture(&[
+            "##########", //
+            "?....?????", //
+            "##########", //
+        ]);
+        with_input(&grid, &[], &[], |input| {
+            let by_x = |behind: Vec<usize>| -> Vec<(i32, usize)> {
+                let mut pairs: Vec<(i32, usize)> =
+                    input.clusters.iter().map(|c| c.representative.x).zip(behind).collect();
+                pairs.sort_unstable();
+                pairs
+            };
+            assert_eq!(by_x(unknown_behind(input.grid, input.clusters, 3)), [(1, 1), (4, 3)]);
+            assert_eq!(by_x(unknown_behind(input.grid, input.clusters, 10)), [(1, 1), (4, 5)]);
+        });
     }
 
     /// Robot i is 1 m from clusters 4i..4i+4 and 50 m from the others.
