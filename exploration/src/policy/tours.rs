@@ -36,7 +36,8 @@
 //!   better one appears): the robot's current cluster costs it
 //!   `switch_margin` less, in its ownership, its tour and its helper choice.
 //!
-//! The target in a cluster is its cell nearest to the robot, as in MinPos.
+//! The target in a cluster is its cell nearest to the robot, as in MinPos
+//! (with `behind_m`, the nearest out of view of the robots already sent there).
 
 use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_METRES};
 use super::{ClusterCosts, Plan, PlanningInput, Policy, RobotView, Target, cluster_cost_matrix};
@@ -156,6 +157,8 @@ impl Policy for Tours {
                     cell = out_of_view(&input.robots[i], &input.clusters[j], cell, &taken[j], apart);
                 }
                 taken[j].push(cell);
+                // The path cost stays that of the cluster's nearest cell: a
+                // cell moved along the frontier has no search of its own.
                 Some(Target { cell, utility: -c.score, path_cost: c.cost, gain_region: None })
             })
             .collect();
