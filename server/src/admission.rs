@@ -40,7 +40,9 @@
 //! It is off unless asked for (`--shed-target-ms`). Robots that send at
 //! their own rates gain from it under a CPU limit, where at twice the
 //! saturation point it halved the map updates' p99 (and brought it to about
-//! 100 ms with a 10 ms target and a 50 ms interval); but callers that send
+//! 100 ms with a 10 ms target and a 50 ms interval, 64–88 ms with a 25 ms
+//! interval, which refused about one call in a thousand at the real rates);
+//! but callers that send
 //! again as soon as they are answered (a fleet manager relaying as fast as
 //! it can, the capacity phase of `fleet-sim load`) hold a queue standing
 //! by design, and there it cost a tenth to a third of the updates answered

@@ -216,3 +216,44 @@ impl PolicyConfig {
         (self.descriptor.build)(self)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::Cell;
+    use crate::grid::testing::grid_from_picture;
+    use crate::policy::testing::{plan_targets, robot};
+
+    /// Every parameter of every policy: the worst values a request can carry
+    /// are refused, naming the parameter; the ends of its range are taken,
+    /// and the policy built from them plans without panicking.
+    #[test]
+    fn every_parameter_refuses_what_lies_outside_its_range_and_plans_at_its_ends() {
+        let grid = grid_from_picture(&[
+            "#########?#####", //
+            "?.............?", //
+            "#.....#.......#", //
+            "#.....#.......?", //
+            "####?##########", //
+        ]);
+        let robots = [robot(0, Cell::new(2, 2), 3.0), robot(1, Cell::new(9, 3), 3.0), robot(2, Cell::new(12, 1), 3.0)];
+        for descriptor in catalogue() {
+            for spec in descriptor.params {
+                let with =
+                    |value: f64| PolicyConfig::new(descriptor.name, &BTreeMap::from([(spec.name.to_owned(), value)]));
+                for worst in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, spec.min - 1.0, spec.max + 1.0, -1e300] {
+                    let refused = with(worst).expect_err(&format!("{} {} = {worst}", descriptor.name, spec.name));
+                    assert!(
+                        matches!(refused, PolicyError::OutOfRange { name, .. } if name == spec.name),
+                        "{refused:?}"
+                    );
+                }
+                for end in [spec.min, spec.max] {
+                    let config = with(end).unwrap_or_else(|e| panic!("{} {} = {end}: {e}", descriptor.name, spec.name));
+                    let targets = plan_targets(config.build().as_ref(), &grid, &robots);
+                    assert_eq!(targets.len(), robots.len(), "{} {} = {end}", descriptor.name, spec.name);
+                }
+            }
+        }
+    }
+}

@@ -43,7 +43,8 @@ use super::registry::{MIN_FRONTIER_SIZE, ParamSpec, PolicyDescriptor, SWITCH_MET
 use super::{ClusterCosts, Plan, PlanningInput, Policy, RobotView, Target, cluster_cost_matrix};
 use crate::cost::{CostCache, CostMap, TraversalKind};
 use crate::frontier::FrontierCluster;
-use crate::grid::{Cell, OccupancyGrid, UNKNOWN};
+use crate::grid::{Cell, NEIGHBOURS_8, OccupancyGrid, UNKNOWN};
+use std::collections::VecDeque;
 
 pub(super) const NAME: &str = "tours";
 
@@ -318,39 +319,28 @@ fn out_of_view(robot: &RobotView, cluster: &FrontierCluster, preferred: Cell, ta
 /// breadth-first wave reaches it first (ties to the cluster listed first).
 fn unknown_behind(grid: &OccupancyGrid, clusters: &[FrontierCluster], radius: u32) -> Vec<usize> {
     let frame = grid.frame();
-    let mut owner = vec![u32::MAX; frame.len()];
+    let mut claimed = vec![false; frame.len()];
     let mut behind = vec![0usize; clusters.len()];
-    let mut wave: std::collections::VecDeque<(Cell, u32, u32)> = std::collections::VecDeque::new();
-    let mut claim = |cell: Cell, j: u32, depth: u32, wave: &mut std::collections::VecDeque<(Cell, u32, u32)>| {
-        if !frame.contains(cell) || grid.value(cell) != UNKNOWN {
-            return;
-        }
-        let at = frame.index(cell);
-        if owner[at] == u32::MAX {
-            owner[at] = j;
-            behind[j as usize] += 1;
-            wave.push_back((cell, j, depth));
-        }
-    };
-    for (j, cluster) in clusters.iter().enumerate() {
-        for &cell in &cluster.cells {
-            for next in four_neighbours(cell) {
-                claim(next, j as u32, 1, &mut wave);
-            }
-        }
-    }
+    // The frontier cells themselves (free) start the waves at depth 0,
+    // cluster by cluster, so that ties go to the cluster listed first.
+    let mut wave: VecDeque<(Cell, usize, u32)> =
+        clusters.iter().enumerate().flat_map(|(j, c)| c.cells.iter().map(move |&cell| (cell, j, 0))).collect();
     while let Some((cell, j, depth)) = wave.pop_front() {
-        if depth < radius {
-            for next in four_neighbours(cell) {
-                claim(next, j, depth + 1, &mut wave);
+        if depth == radius {
+            continue;
+        }
+        // The first four of the eight neighbours are the 4-connected ones.
+        for &(dx, dy) in &NEIGHBOURS_8[..4] {
+            let next = Cell::new(cell.x + dx, cell.y + dy);
+            if !frame.contains(next) || grid.value(next) != UNKNOWN || claimed[frame.index(next)] {
+                continue;
             }
+            claimed[frame.index(next)] = true;
+            behind[j] += 1;
+            wave.push_back((next, j, depth + 1));
         }
     }
     behind
-}
-
-fn four_neighbours(c: Cell) -> [Cell; 4] {
-    [Cell::new(c.x + 1, c.y), Cell::new(c.x - 1, c.y), Cell::new(c.x, c.y + 1), Cell::new(c.x, c.y - 1)]
 }
 
 /// Robots that own no cluster: cheapest pair first onto the clusters with
@@ -360,22 +350,21 @@ fn four_neighbours(c: Cell) -> [Cell; 4] {
 fn send_helpers(matrix: &ClusterCosts, places: &[usize], chosen: &mut [Option<usize>]) {
     let n = chosen.len();
     let m = matrix.first().map_or(0, Vec::len);
-    let mut heading = vec![0usize; m];
-    for j in chosen.iter().flatten() {
-        heading[*j] += 1;
+    let mut left = places.to_vec();
+    for &j in chosen.iter().flatten() {
+        left[j] = left[j].saturating_sub(1);
     }
     let helpers: Vec<usize> = (0..n).filter(|&i| chosen[i].is_none()).collect();
     loop {
-        let full: Vec<bool> = (0..m).map(|j| heading[j] >= places.get(j).copied().unwrap_or(1)).collect();
-        let full = &full;
+        let open = &left;
         let best = helpers
             .iter()
             .filter(|&&i| chosen[i].is_none())
-            .flat_map(|&i| (0..m).filter(move |&j| !full[j] && matrix[i][j].is_some()).map(move |j| (i, j)))
+            .flat_map(|&i| (0..m).filter(move |&j| open[j] > 0 && matrix[i][j].is_some()).map(move |j| (i, j)))
             .min_by(|&(a, j), &(b, k)| score(matrix, a, j).total_cmp(&score(matrix, b, k)).then((a, j).cmp(&(b, k))));
         let Some((i, j)) = best else { break };
         chosen[i] = Some(j);
-        heading[j] += 1;
+        left[j] -= 1;
     }
     for &i in &helpers {
         if chosen[i].is_some() {
