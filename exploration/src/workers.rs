@@ -8,6 +8,7 @@
 //! thread has finished a piece of work, on that thread, where it may wait.
 
 use std::fmt::Debug;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Told on a worker thread each time it has finished one piece of a
 /// replanning's parallel work; it may block the thread there for as long
@@ -44,6 +45,11 @@ impl Workers<'static> {
 
 /// `f` over `items` on up to `workers.threads` scoped threads, results in
 /// order; each thread tells the pace after each item.
+///
+/// Thread k starts with item k and then takes the next item nobody has
+/// taken: searches differ in size by orders of magnitude (a robot beside a
+/// frontier against one across the building), so fixed shares would leave
+/// one thread idle while the other finishes its share.
 pub fn in_parallel<T: Sync, R: Send>(items: &[T], workers: Workers<'_>, f: impl Fn(&T) -> R + Sync) -> Vec<R> {
     let threads = workers.threads.clamp(1, items.len().max(1));
     let paced = |item: &T| {
@@ -54,12 +60,29 @@ pub fn in_parallel<T: Sync, R: Send>(items: &[T], workers: Workers<'_>, f: impl 
     if threads == 1 {
         return items.iter().map(paced).collect();
     }
-    let chunk = items.len().div_ceil(threads);
-    std::thread::scope(|scope| {
-        let handles: Vec<_> =
-            items.chunks(chunk).map(|part| scope.spawn(|| part.iter().map(&paced).collect::<Vec<_>>())).collect();
+    let next = AtomicUsize::new(threads);
+    let done: Vec<(usize, R)> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..threads)
+            .map(|first| {
+                let (next, paced) = (&next, &paced);
+                scope.spawn(move || {
+                    let mut done = Vec::new();
+                    let mut i = first;
+                    while let Some(item) = items.get(i) {
+                        done.push((i, paced(item)));
+                        i = next.fetch_add(1, Ordering::Relaxed);
+                    }
+                    done
+                })
+            })
+            .collect();
         handles.into_iter().flat_map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect()
-    })
+    });
+    let mut slots: Vec<Option<R>> = std::iter::repeat_with(|| None).take(items.len()).collect();
+    for (i, r) in done {
+        slots[i] = Some(r);
+    }
+    slots.into_iter().flatten().collect()
 }
 
 #[cfg(test)]
@@ -94,6 +117,30 @@ mod tests {
             assert_eq!(*tally.0.lock().unwrap(), by_worker, "{threads} threads");
             assert_eq!(by_worker.len(), threads.min(7), "{threads} threads");
         }
+    }
+
+    /// A long item does not hold back the items after it: while the
+    /// first waits for every other item to be done, the second thread does
+    /// them all (with fixed shares, the first thread's share would wait
+    /// behind it for ever).
+    #[test]
+    fn an_idle_thread_takes_the_next_item() {
+        let (tx, rx) = std::sync::mpsc::channel::<()>();
+        let rx = Mutex::new(rx);
+        let items: Vec<u32> = (0..9).collect();
+        let out = in_parallel(&items, Workers::unpaced(2), |&x| {
+            if x == 0 {
+                let rx = rx.lock().unwrap();
+                for _ in 1..9 {
+                    // A guard against hanging, not a measure: the others take microseconds.
+                    rx.recv_timeout(std::time::Duration::from_secs(30)).expect("the other items were done meanwhile");
+                }
+            } else {
+                tx.send(()).unwrap();
+            }
+            x + 1
+        });
+        assert_eq!(out, (1..10).collect::<Vec<_>>());
     }
 
     #[test]
