@@ -65,6 +65,9 @@ pub struct GrowingCostMap<'t> {
     /// The estimate the search is ordered by; `None` when `cost` is
     /// complete (the fallback where buckets cannot hold the steps).
     goals: Option<&'t GoalDistance>,
+    /// The radius before the search settled anything: about the source's
+    /// cost to the nearest goal.
+    first_radius: f64,
 }
 
 impl<'t> GrowingCostMap<'t> {
@@ -75,7 +78,7 @@ impl<'t> GrowingCostMap<'t> {
         let mut cost = vec![f32::INFINITY; traversal.padded.len()];
         let (starts, stranded) = traversal.seed(&[source], &mut cost, &mut []);
         let stranded = stranded.first().map(|&(cell, _)| cell);
-        let mut map = Self { traversal, cost, search: None, stranded, goals: Some(goals) };
+        let mut map = Self { traversal, cost, search: None, stranded, goals: Some(goals), first_radius: 0.0 };
         // No goal can be reached from a source off the window or cut off from them.
         let Some(&start) = starts.first().filter(|&&i| goals.cost[i].is_finite()) else { return map };
         match Buckets::guided(start, goals.cost[start], traversal.step_bounds()) {
@@ -83,6 +86,7 @@ impl<'t> GrowingCostMap<'t> {
                 let mut open = vec![0u64; map.cost.len().div_ceil(64)];
                 open[start / 64] |= 1 << (start % 64);
                 map.search = Some((search, open));
+                map.first_radius = map.radius();
             }
             None => {
                 // Step costs too far apart for buckets: the complete search.
@@ -120,13 +124,24 @@ impl<'t> GrowingCostMap<'t> {
     }
 
     /// Resumes the search until it answers for every one of `cells` or has
-    /// settled all it can, in steps that double.
+    /// settled all it can, in steps of [`Self::next_radius`].
     pub fn grow_to_reach(&mut self, cells: &[Cell]) {
-        let mut step = 1.0;
         while self.radius() < f64::INFINITY && !cells.iter().all(|&c| self.cost(c).is_some()) {
-            self.grow_to(self.radius() + step);
-            step *= 2.0;
+            self.grow_to(self.next_radius());
         }
+    }
+
+    /// Where to grow to next when looking for something not reached yet: a
+    /// unit of cost (a metre of free space) past the radius, or a quarter
+    /// of the way searched so far past the first goal's, whichever is more.
+    /// Everything settled past what was looked for is waste, and a search
+    /// towards goals widens with every unit of slack; a quarter wastes at
+    /// most a fifth of the slack, in a number of steps that grows with its
+    /// logarithm. (Steps that doubled wasted up to half of it: the replan
+    /// bench's office, `unassigned` with 200 robots, 700 ms → 610 ms.)
+    pub fn next_radius(&self) -> f64 {
+        let radius = self.radius();
+        radius + (0.25 * (radius - self.first_radius)).max(1.0)
     }
 
     /// The cost of reaching `cell`, if it is below the radius; `None` for a

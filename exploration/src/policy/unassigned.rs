@@ -13,9 +13,11 @@
 //! shares the closest one.
 
 use super::registry::{MIN_FRONTIER_SIZE, PolicyDescriptor, SWITCH_METRES};
-use super::{Plan, PlanningInput, Policy, RobotView, Target, Towards, current_target, towards_goals};
+use super::{Plan, PlanningInput, Policy, RobotView, Target, current_target, towards_goals};
 use crate::cost::{CostCache, GrowingCostMap, TraversalKind};
 use crate::grid::Cell;
+use std::sync::{Mutex, PoisonError};
+
 use crate::workers::in_parallel;
 
 pub(super) const NAME: &str = "unassigned";
@@ -43,37 +45,89 @@ impl Policy for Unassigned {
     }
 
     /// Each robot's search goes only as far as its choice needs (see
-    /// [`Unassigned::choose`]): first on the planner's threads, as if no
-    /// cell were taken, keeping only what it reached; then, in id order, a
-    /// robot whose choice the robots before it took searches again, further.
+    /// [`Unassigned::choose`]). The choices depend on each other in id
+    /// order, the searches need not: they run on the planner's threads, in
+    /// id order, each with the cells the robots before it would take by
+    /// what their searches, finished by then, reached; then, in rounds,
+    /// again for the robots whose choice is still not sure. The choices are
+    /// then made in id order from what the searches reached, as one robot
+    /// after another would; a robot still unsure there searches again on
+    /// its own. The guesses decide how far each search goes, never what it
+    /// chooses.
     fn plan(&self, input: &PlanningInput<'_>, costs: &mut CostCache<'_>) -> Plan {
         let frontier = input.frontier_cells();
         let kinds: Vec<TraversalKind> = input.robots.iter().map(RobotView::free_space).collect();
         let traversals = towards_goals(&kinds, costs, &frontier);
-        let pairs: Vec<(&RobotView, &Towards)> = input.robots.iter().zip(&traversals).collect();
-        let search = |robot: &RobotView, (traversal, goals): &Towards, taken: &[Cell]| {
+        let search = |i: usize, taken: &[Cell]| {
+            let (robot, (traversal, goals)) = (&input.robots[i], &traversals[i]);
             let mut search = GrowingCostMap::towards(traversal, robot.cell, goals);
             let choice = self.choose(robot, &mut search, &frontier, taken);
             (choice, Reached::of(robot, &search, &frontier))
         };
-        // Only what each search reached is kept: a search holds a label per
-        // known cell, too much to keep one per robot of a large team.
-        let first: Vec<Reached> = in_parallel(&pairs, input.workers, |(robot, towards)| search(robot, towards, &[]).1);
         let mut order: Vec<usize> = (0..input.robots.len()).collect();
         order.sort_by_key(|&i| input.robots[i].id);
+        let mut reached = self.first_searches(input, &order, |i, taken| search(i, taken).1);
+        for _ in 0..SPECULATIVE_ROUNDS {
+            let unsure = self.unsure(input.robots, &order, &reached);
+            if unsure.is_empty() {
+                break;
+            }
+            let again = in_parallel(&unsure, input.workers, |(i, taken)| search(*i, taken).1);
+            for ((i, _), r) in unsure.into_iter().zip(again) {
+                if r.radius > reached[i].radius {
+                    reached[i] = r;
+                }
+            }
+        }
         let mut taken: Vec<Cell> = Vec::new();
         let mut targets = vec![None; input.robots.len()];
-        for i in order {
+        for &i in &order {
             let robot = &input.robots[i];
-            let choice = match self.decide(robot, &first[i], &taken) {
+            let choice = match self.decide(robot, &reached[i], &taken) {
                 Ok(choice) => choice,
-                Err(_) => search(robot, pairs[i].1, &taken).0,
+                Err(_) => search(i, &taken).0,
             };
             let Some((cell, cost)) = choice else { continue };
             taken.push(cell);
             targets[i] = Some(Target { cell, utility: -cost, path_cost: cost, gain_region: None });
         }
         Plan::of(targets)
+    }
+}
+
+/// How many times the robots whose choices are not sure search again
+/// together before the rest search one after another. Each round makes at
+/// least the first unsure robot in id order sure.
+const SPECULATIVE_ROUNDS: usize = 4;
+
+/// The first searches' results as they come in, by position in id order,
+/// and the choices made from them so far.
+#[derive(Default)]
+struct SoFar {
+    reached: Vec<Option<Reached>>,
+    /// Positions before this are all searched; their choices are `taken`.
+    settled: usize,
+    taken: Vec<Cell>,
+}
+
+impl SoFar {
+    /// The cells the robots before position `p` would take, by `choice`
+    /// (position, what its search reached, the cells taken before it),
+    /// from the searches finished so far; a robot still searching takes
+    /// none.
+    fn taken_before(&mut self, p: usize, choice: impl Fn(usize, &Reached, &[Cell]) -> Option<Cell>) -> Vec<Cell> {
+        while self.settled < p {
+            let Some(reached) = &self.reached[self.settled] else { break };
+            self.taken.extend(choice(self.settled, reached, &self.taken));
+            self.settled += 1;
+        }
+        let mut taken = self.taken.clone();
+        for (q, reached) in self.reached.iter().enumerate().take(p).skip(self.settled) {
+            if let Some(reached) = reached {
+                taken.extend(choice(q, reached, &taken));
+            }
+        }
+        taken
     }
 }
 
@@ -89,6 +143,16 @@ impl Reached {
         let cells =
             frontier.iter().filter(|&&c| robot.may_target(c)).filter_map(|&c| Some((c, search.cost(c)?))).collect();
         Self { cells, radius: search.radius() }
+    }
+
+    /// The closest cell reached, of those not `taken` when `free_only`.
+    /// Ties go to the first cell in row-major order: deterministic.
+    fn closest(&self, taken: &[Cell], free_only: bool) -> Option<(Cell, f64)> {
+        self.cells
+            .iter()
+            .copied()
+            .filter(|(cell, _)| !free_only || !taken.contains(cell))
+            .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.y.cmp(&b.0.y)).then(a.0.x.cmp(&b.0.x)))
     }
 }
 
@@ -106,16 +170,14 @@ impl Unassigned {
     ) -> Option<(Cell, f64)> {
         // A robot's first look: about its own size past the nearest
         // frontier cell (where a search towards the frontier starts), then
-        // doubling that step.
-        let mut step = 1.0f64;
+        // a quarter of the slack further each time.
         loop {
             let reached = Reached::of(robot, search, frontier);
             let best = match self.decide(robot, &reached, taken) {
                 Ok(choice) => return choice,
                 Err(best) => best,
             };
-            let mut radius = reached.radius + step;
-            step *= 2.0;
+            let mut radius = search.next_radius();
             if let Some(cost) = best {
                 // Just past it: a search towards the frontier pays for
                 // every metre of slack with a wider band.
@@ -130,15 +192,7 @@ impl Unassigned {
     /// closest free cell reached so far. A cell not reached costs at least
     /// the radius.
     fn decide(&self, robot: &RobotView, reached: &Reached, taken: &[Cell]) -> Result<Option<(Cell, f64)>, Option<f64>> {
-        // Ties go to the first cell in row-major order: deterministic.
-        let closest = |free_only: bool| {
-            reached
-                .cells
-                .iter()
-                .copied()
-                .filter(|(cell, _)| !free_only || !taken.contains(cell))
-                .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.y.cmp(&b.0.y)).then(a.0.x.cmp(&b.0.x)))
-        };
+        let closest = |free_only: bool| reached.closest(taken, free_only);
         let best = closest(true);
         let everything = reached.radius == f64::INFINITY;
         // Sure when nothing unreached can be closer or tie, nor be a
@@ -155,6 +209,65 @@ impl Unassigned {
             .and_then(|c| reached.cells.iter().copied().find(|(cell, _)| *cell == c))
             .filter(|(_, cost)| cost - self.switch_margin <= best.1);
         Ok(Some(kept.unwrap_or(best)))
+    }
+
+    /// Every robot's first search (`search(robot, taken)`), by index, made
+    /// in id `order` on the planner's threads. Each is told the cells the
+    /// robots before it would take by what their searches, finished by
+    /// then, reached: the threads take robots in order, so all but the few
+    /// still searching. Only what each search reached is kept: a search
+    /// holds a label per known cell, too much to keep one per robot of a
+    /// large team.
+    fn first_searches(
+        &self,
+        input: &PlanningInput<'_>,
+        order: &[usize],
+        search: impl Fn(usize, &[Cell]) -> Reached + Sync,
+    ) -> Vec<Reached> {
+        let so_far = Mutex::new(SoFar {
+            reached: std::iter::repeat_with(|| None).take(order.len()).collect(),
+            ..SoFar::default()
+        });
+        let lock = || so_far.lock().unwrap_or_else(PoisonError::into_inner);
+        let likely =
+            |p: usize, reached: &Reached, taken: &[Cell]| self.likely(&input.robots[order[p]], reached, taken).0;
+        let positions: Vec<usize> = (0..order.len()).collect();
+        in_parallel(&positions, input.workers, |&p| {
+            let taken = lock().taken_before(p, likely);
+            let reached = search(order[p], &taken);
+            lock().reached[p] = Some(reached);
+        });
+        let mut by_robot: Vec<Option<Reached>> = std::iter::repeat_with(|| None).take(order.len()).collect();
+        for (&i, reached) in order.iter().zip(so_far.into_inner().unwrap_or_else(PoisonError::into_inner).reached) {
+            by_robot[i] = reached;
+        }
+        by_robot.into_iter().flatten().collect()
+    }
+
+    /// The robots whose choice is not sure from what their searches
+    /// `reached`, each with the cells the robots before it in id `order`
+    /// would take by [`Self::likely`].
+    fn unsure(&self, robots: &[RobotView], order: &[usize], reached: &[Reached]) -> Vec<(usize, Vec<Cell>)> {
+        let mut taken = Vec::new();
+        let mut unsure = Vec::new();
+        for &i in order {
+            let (choice, sure) = self.likely(&robots[i], &reached[i], &taken);
+            if !sure {
+                unsure.push((i, taken.clone()));
+            }
+            taken.extend(choice);
+        }
+        unsure
+    }
+
+    /// The robot's choice from what its search `reached` when it is sure
+    /// (true), else a guess: its closest free cell reached so far, right
+    /// unless a cell not reached yet is as close.
+    fn likely(&self, robot: &RobotView, reached: &Reached, taken: &[Cell]) -> (Option<Cell>, bool) {
+        match self.decide(robot, reached, taken) {
+            Ok(choice) => (choice.map(|(cell, _)| cell), true),
+            Err(_) => (reached.closest(taken, true).map(|(cell, _)| cell), false),
+        }
     }
 
     /// How far past its closest cell a robot's search must go: the
