@@ -135,10 +135,9 @@ impl<'t> GrowingCostMap<'t> {
     /// unit of cost (a metre of free space) past the radius, or a quarter
     /// of the way searched so far past the first goal's, whichever is more.
     /// Everything settled past what was looked for is waste, and a search
-    /// towards goals widens with every unit of slack; a quarter wastes at
-    /// most a fifth of the slack, in a number of steps that grows with its
-    /// logarithm. (Steps that doubled wasted up to half of it: the replan
-    /// bench's office, `unassigned` with 200 robots, 700 ms → 610 ms.)
+    /// towards goals widens with every unit of slack: a quarter wastes at
+    /// most a fifth of the slack (steps that double, up to half), in a
+    /// number of steps that grows with its logarithm.
     pub fn next_radius(&self) -> f64 {
         let radius = self.radius();
         radius + (0.25 * (radius - self.first_radius)).max(1.0)
