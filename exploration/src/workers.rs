@@ -47,9 +47,11 @@ impl Workers<'static> {
 /// order; each thread tells the pace after each item.
 ///
 /// Thread k starts with item k and then takes the next item nobody has
-/// taken: searches differ in size by orders of magnitude (a robot beside a
-/// frontier against one across the building), so fixed shares would leave
-/// one thread idle while the other finishes its share.
+/// taken, so items start in order (`unassigned`'s searches tell each robot
+/// what the robots before it chose, and need those searched first), and
+/// no thread idles behind another's long share (searches differ in size by
+/// orders of magnitude: a robot beside a frontier against one across the
+/// building).
 pub fn in_parallel<T: Sync, R: Send>(items: &[T], workers: Workers<'_>, f: impl Fn(&T) -> R + Sync) -> Vec<R> {
     let threads = workers.threads.clamp(1, items.len().max(1));
     let paced = |item: &T| {
