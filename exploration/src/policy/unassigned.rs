@@ -12,12 +12,12 @@
 //! here by robot id. When every reachable frontier cell is taken, a robot
 //! shares the closest one.
 
+use std::sync::{Mutex, PoisonError};
+
 use super::registry::{MIN_FRONTIER_SIZE, PolicyDescriptor, SWITCH_METRES};
 use super::{Plan, PlanningInput, Policy, RobotView, Target, current_target, towards_goals};
 use crate::cost::{CostCache, GrowingCostMap, TraversalKind};
 use crate::grid::Cell;
-use std::sync::{Mutex, PoisonError};
-
 use crate::workers::in_parallel;
 
 pub(super) const NAME: &str = "unassigned";
@@ -102,7 +102,6 @@ const SPECULATIVE_ROUNDS: usize = 4;
 
 /// The first searches' results as they come in, by position in id order,
 /// and the choices made from them so far.
-#[derive(Default)]
 struct SoFar {
     reached: Vec<Option<Reached>>,
     /// Positions before this are all searched; their choices are `taken`.
@@ -111,6 +110,11 @@ struct SoFar {
 }
 
 impl SoFar {
+    /// Nothing searched yet, of `robots`.
+    fn new(robots: usize) -> Self {
+        Self { reached: std::iter::repeat_with(|| None).take(robots).collect(), settled: 0, taken: Vec::new() }
+    }
+
     /// The cells the robots before position `p` would take, by `choice`
     /// (position, what its search reached, the cells taken before it),
     /// from the searches finished so far; a robot still searching takes
@@ -224,10 +228,7 @@ impl Unassigned {
         order: &[usize],
         search: impl Fn(usize, &[Cell]) -> Reached + Sync,
     ) -> Vec<Reached> {
-        let so_far = Mutex::new(SoFar {
-            reached: std::iter::repeat_with(|| None).take(order.len()).collect(),
-            ..SoFar::default()
-        });
+        let so_far = Mutex::new(SoFar::new(order.len()));
         let lock = || so_far.lock().unwrap_or_else(PoisonError::into_inner);
         let likely =
             |p: usize, reached: &Reached, taken: &[Cell]| self.likely(&input.robots[order[p]], reached, taken).0;
