@@ -371,7 +371,7 @@ impl<'g> CostCache<'g> {
 
 #[cfg(test)]
 mod tests {
-    use super::search::{Moves, Weighted, heap};
+    use super::search::{Moves, Neighbourhood, Weighted, heap};
     use super::*;
     use crate::grid::UNKNOWN;
     use crate::grid::testing::grid_from_picture;
@@ -492,6 +492,8 @@ mod tests {
                 bits: &t.passable_bits,
                 moves: &t.moves,
                 entries: &t.entries,
+                // Every step read from the neighbour's cost: the reference.
+                flat: &[],
                 stride: t.window.stride,
                 orthogonal: 0.25,
                 diagonal: (0.25 * std::f64::consts::SQRT_2) as f32,
@@ -508,6 +510,54 @@ mod tests {
                     Some(a) => proptest::prop_assert!((a - f64::from(b)).abs() < 1e-4, "{:?}: {} vs {}", cell, a, b),
                     None => proptest::prop_assert!(!b.is_finite()),
                 }
+            }
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(crate::testing::seeded_proptest(256))]
+        /// A flat cell's steps, taken as uniform ones, offer its neighbours
+        /// the same costs, to the bit and in the same order, as the steps
+        /// that read each neighbour's cost; and the costs come in patches,
+        /// so that flat cells are common.
+        #[test]
+        fn flat_cells_step_as_the_per_cell_costs_do(
+            width in 1u32..24,
+            height in 1u32..24,
+            seed in 0u64..1_000_000,
+            patch in 1u32..6,
+            blocked_per_mille in 0u64..300,
+        ) {
+            let frame = GridFrame::new(0.1, crate::math::Point2::origin(), width, height);
+            let mut rng = crate::rng::SplitMix64::new(seed);
+            let levels = [0.12f32, 0.3, 0.1 + rng.next_f64() as f32];
+            let per_patch: Vec<f32> = (0..frame.len()).map(|_| levels[rng.below(3) as usize]).collect();
+            let costs: Vec<f32> = frame
+                .bounds()
+                .cells()
+                .map(|c| {
+                    let patch_of = (c.y as u32 / patch) * width + c.x as u32 / patch;
+                    if rng.below(1000) < blocked_per_mille { f32::INFINITY } else { per_patch[patch_of as usize] }
+                })
+                .collect();
+            let t = TraversalMap::from_costs(frame, costs);
+            let with_flat = t.weighted();
+            let reference = Weighted { flat: &[], ..with_flat };
+            let offered = |n: &Weighted<'_>, i: usize, here: f32| {
+                let mut steps = Vec::new();
+                n.neighbours::<false>(i, here, |j, c| steps.push((j, c.to_bits())));
+                steps
+            };
+            for i in 0..t.padded.len() {
+                let here = rng.next_f64() as f32 * 100.0;
+                proptest::prop_assert_eq!(offered(&with_flat, i, here), offered(&reference, i, here), "cell {}", i);
+            }
+            // A flat cell is one whose every step enters a cell of its own cost.
+            let flat = (0..t.padded.len()).filter(|&i| !t.flat.is_empty() && super::search::bit(&t.flat, i)).count();
+            if t.is_uniform() {
+                proptest::prop_assert!(t.flat.is_empty());
+            } else if patch >= 4 && blocked_per_mille == 0 && width >= 12 && height >= 12 {
+                proptest::prop_assert!(flat > 0, "patches of {} cells leave some cell flat", patch);
             }
         }
     }

@@ -26,6 +26,11 @@ pub struct TraversalMap {
     /// Per passable cell, the steps into it that cut no corner (bit k: from
     /// the neighbour at offset k), whether or not that neighbour is passable.
     pub(super) entries: Vec<u8>,
+    /// Per cell, whether every step out of it (its [`Self::moves`]) enters
+    /// a cell of exactly its own cost, so that a search can take them as
+    /// uniform steps without reading the neighbours' costs. Empty when the
+    /// whole map is uniform: its searches never read per-cell costs.
+    pub(super) flat: Vec<u64>,
     /// Smallest and largest finite cost per metre.
     pub(super) step_range: (f32, f32),
 }
@@ -107,7 +112,8 @@ impl TraversalMap {
             }
         }
         let (moves, entries) = Moves::of(&passable_bits, window);
-        Self { frame, window, padded, passable_bits, moves, entries, step_range }
+        let flat = if step_range.0 == step_range.1 { Vec::new() } else { Moves::flat(&padded, &moves, window) };
+        Self { frame, window, padded, passable_bits, moves, entries, flat, step_range }
     }
 
     /// Known free cells cost 1 per metre; everything else is impassable, and
