@@ -26,8 +26,8 @@ pub struct TraversalMap {
     /// Per passable cell, the steps into it that cut no corner (bit k: from
     /// the neighbour at offset k), whether or not that neighbour is passable.
     pub(super) entries: Vec<u8>,
-    /// Per cell, whether every step out of it (its [`Self::moves`]) enters
-    /// a cell of exactly its own cost, so that a search can take them as
+    /// One bit per cell: whether every step out of it (its [`Self::moves`])
+    /// enters a cell of exactly its own cost, so that a search can take them as
     /// uniform steps without reading the neighbours' costs. Empty when the
     /// whole map is uniform: its searches never read per-cell costs.
     pub(super) flat: Vec<u64>,
@@ -112,8 +112,11 @@ impl TraversalMap {
             }
         }
         let (moves, entries) = Moves::of(&passable_bits, window);
-        let flat = if step_range.0 == step_range.1 { Vec::new() } else { Moves::flat(&padded, &moves, window) };
-        Self { frame, window, padded, passable_bits, moves, entries, flat, step_range }
+        let mut map = Self { frame, window, padded, passable_bits, moves, entries, flat: Vec::new(), step_range };
+        if !map.is_uniform() {
+            map.flat = Moves::flat(&map.padded, &map.moves, window);
+        }
+        map
     }
 
     /// Known free cells cost 1 per metre; everything else is impassable, and
