@@ -10,8 +10,10 @@
 //! - [`runs`]: their results, `runs.csv` and `summary.csv`.
 //! - [`bound`]: how few steps any policy could take in a run.
 //! - [`plots`], [`picture`], [`stats`], [`report`]: what the experiments show.
+//! - [`console`]: the tools' lines on standard output and error, which may be closed early.
 
 pub mod bound;
+pub mod console;
 pub mod experiment;
 pub mod fleet;
 pub mod generate;

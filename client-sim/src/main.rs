@@ -2,18 +2,21 @@
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
+use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{Context, bail};
 use clap::{Args, Parser, Subcommand};
 use tracing_subscriber::EnvFilter;
 
+use client_sim::console::StdoutError;
 use client_sim::experiment::Experiment;
 use client_sim::fleet::{CommRange, Fault, FaultKind, Interference, Layout, WorldSpec};
 use client_sim::generate::Generator;
 use client_sim::robot::RobotModel;
 use client_sim::world::StartChoice;
 use client_sim::{RunConfig, RunReport};
+use client_sim::{errln, outln};
 use exploration::math::Point2;
 
 /// Planning allocates a cost map per robot (megabytes each) and drops it
@@ -409,16 +412,25 @@ fn parse_start(s: &str) -> anyhow::Result<StartChoice> {
 }
 
 #[tokio::main]
-async fn main() -> anyhow::Result<()> {
+async fn main() -> ExitCode {
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("warn"));
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
-    match Cli::parse().command {
+    let done = match Cli::parse().command {
         Command::Run(args) => run(*args).await,
         Command::Experiment(args) => experiment(args).await,
         Command::Report(args) => report(args),
         Command::Load(args) => load(*args).await,
         Command::LoadPlot(args) => load_plot(args),
         Command::Bound(args) => bound(args),
+    };
+    match done {
+        Ok(()) => ExitCode::SUCCESS,
+        // `fleet-sim bound ... | head`: the reader had what it wanted.
+        Err(e) if StdoutError::is_reader_gone(&e) => ExitCode::SUCCESS,
+        Err(e) => {
+            errln!("Error: {e:?}");
+            ExitCode::FAILURE
+        }
     }
 }
 
@@ -452,12 +464,12 @@ async fn load(args: LoadArgs) -> anyhow::Result<()> {
         honour_pushback: !args.ignore_pushback,
     };
     let report = client_sim::load::run(&config).await?;
-    eprint!("{}", report.summary());
+    errln!("{}", report.summary().trim_end());
     let json = serde_json::to_string(&report)?;
     if let Some(path) = args.json {
         std::fs::write(&path, &json).with_context(|| format!("cannot write {}", path.display()))?;
     }
-    println!("{json}");
+    outln!("{json}")?;
     Ok(())
 }
 
@@ -471,7 +483,7 @@ fn load_plot(args: LoadPlotArgs) -> anyhow::Result<()> {
         })
         .collect::<anyhow::Result<Vec<serde_json::Value>>>()?;
     for file in client_sim::plots::draw_load_sweep(&reports, &args.out)? {
-        println!("{}", file.display());
+        outln!("{}", file.display())?;
     }
     Ok(())
 }
@@ -537,9 +549,9 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
         client_sim::experiment::draw_run(&report, path).with_context(|| format!("cannot write {}", path.display()))?;
     }
     if args.json {
-        println!("{}", serde_json::to_string(&report)?);
+        outln!("{}", serde_json::to_string(&report)?)?;
     } else {
-        print_summary(&report, config.return_home);
+        print_summary(&report, config.return_home)?;
     }
     Ok(())
 }
@@ -558,7 +570,7 @@ async fn experiment(args: ExperimentArgs) -> anyhow::Result<()> {
     client_sim::experiment::run_experiment(&args.config, &out, jobs, server, true)
         .await
         .with_context(|| format!("experiment {} failed", args.config.display()))?;
-    eprintln!("results in {}", out.display());
+    errln!("results in {}", out.display());
     Ok(())
 }
 
@@ -568,10 +580,10 @@ fn bound(args: BoundArgs) -> anyhow::Result<()> {
     let experiment = Experiment::load(&args.config)?;
     let config_dir = args.config.parent().unwrap_or_else(|| std::path::Path::new("."));
     let bounds = matrix_bounds(&experiment, config_dir).map_err(anyhow::Error::msg)?;
-    println!("world,robots,comm_range,seed,travel,pairs,sweep,bound");
+    outln!("world,robots,comm_range,seed,travel,pairs,sweep,bound")?;
     for cell in &bounds {
         let (run, b) = (&cell.run, &cell.bound);
-        println!(
+        outln!(
             "{},{},{},{},{},{},{},{}",
             run.world,
             run.robots,
@@ -581,18 +593,18 @@ fn bound(args: BoundArgs) -> anyhow::Result<()> {
             b.pairs,
             b.sweep,
             b.steps()
-        );
+        )?;
     }
     let dir = args.runs.unwrap_or_else(|| PathBuf::from("docs/results").join(&experiment.name));
     let runs = client_sim::runs::read_runs(&dir)?;
     if runs.is_empty() {
-        eprintln!("no runs in {} to hold against the bounds", dir.display());
+        errln!("no runs in {} to hold against the bounds", dir.display());
         return Ok(());
     }
-    println!("\nlabel,robots,completed_runs,mean_steps,mean_bound,steps_over_bound");
+    outln!("\nlabel,robots,completed_runs,mean_steps,mean_bound,steps_over_bound")?;
     for a in against_runs(&bounds, &runs) {
         let ratio = a.mean_steps / a.mean_bound;
-        println!("{},{},{},{:.1},{:.1},{ratio:.3}", a.label, a.robots, a.runs, a.mean_steps, a.mean_bound);
+        outln!("{},{},{},{:.1},{:.1},{ratio:.3}", a.label, a.robots, a.runs, a.mean_steps, a.mean_bound)?;
     }
     Ok(())
 }
@@ -608,7 +620,7 @@ fn report(args: ReportArgs) -> anyhow::Result<()> {
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     client_sim::report::write_report(&experiments, &args.out)?;
-    eprintln!("wrote {}", args.out.display());
+    errln!("wrote {}", args.out.display());
     Ok(())
 }
 
@@ -642,40 +654,41 @@ fn parse_comm_range(s: &str) -> anyhow::Result<CommRange> {
     })
 }
 
-fn print_summary(r: &RunReport, return_home: bool) {
+fn print_summary(r: &RunReport, return_home: bool) -> Result<(), StdoutError> {
     let steps = |t: Option<u64>| t.map_or("-".to_owned(), |t| t.to_string());
-    println!();
-    println!("mission {}  map {}  policy {}  robots {}  seed {}", r.mission_id, r.map, r.policy, r.robots, r.seed);
-    println!(
+    outln!()?;
+    outln!("mission {}  map {}  policy {}  robots {}  seed {}", r.mission_id, r.map, r.policy, r.robots, r.seed)?;
+    outln!(
         "{}: {} after {} steps ({:.1} s wall time)",
         if r.completed { "completed" } else { "NOT completed" },
         r.ended,
         r.steps,
         r.wall_time_s
-    );
-    println!("coverage {:.2} % of {} reachable cells ({} m cells)", 100.0 * r.coverage, r.reachable_cells, r.cell_size);
-    println!("steps to 50/90/95/100 %: {} / {} / {} / {}", steps(r.t50), steps(r.t90), steps(r.t95), steps(r.t100));
+    )?;
+    outln!("coverage {:.2} % of {} reachable cells ({} m cells)", 100.0 * r.coverage, r.reachable_cells, r.cell_size)?;
+    outln!("steps to 50/90/95/100 %: {} / {} / {} / {}", steps(r.t50), steps(r.t90), steps(r.t95), steps(r.t100))?;
     let distances: Vec<String> = r.distance_per_robot.iter().map(|d| format!("{d:.1}")).collect();
-    println!("distance per robot (m): {}", distances.join(", "));
-    println!("replans {}  map updates {}  overlap {:.1} %", r.replans, r.map_updates, 100.0 * r.overlap);
-    println!(
+    outln!("distance per robot (m): {}", distances.join(", "))?;
+    outln!("replans {}  map updates {}  overlap {:.1} %", r.replans, r.map_updates, 100.0 * r.overlap)?;
+    outln!(
         "targets abandoned before reached: {} ({:.2} per robot per 100 steps)",
         r.target_switches,
         r.switches_per_robot_per_100_steps()
-    );
+    )?;
     match r.home_steps {
-        Some(home) => println!("every robot home {home} steps after exploration ended"),
-        None if return_home => println!("not every robot got home within the step limit"),
+        Some(home) => outln!("every robot home {home} steps after exploration ended")?,
+        None if return_home => outln!("not every robot got home within the step limit")?,
         None => {}
     }
     if let Some(f) = &r.fault_record {
         let states: Vec<String> = f.tasks_by_state.iter().map(|(s, n)| format!("{s} {n}")).collect();
-        println!("tasks: {}", states.join(", "));
-        println!(
+        outln!("tasks: {}", states.join(", "))?;
+        outln!(
             "failed for lack of progress {}  reported unreachable {}  robots lost at the end: {}",
             f.stalled_tasks,
             f.unreachable_tasks,
             if f.lost_robots.is_empty() { "none".to_owned() } else { f.lost_robots.join(", ") }
-        );
+        )?;
     }
+    Ok(())
 }

@@ -56,3 +56,23 @@ fn bad_arguments_fail_with_a_message() {
     assert!(!output.status.success());
     assert!(String::from_utf8_lossy(&output.stderr).contains("key=value"));
 }
+
+/// `fleet-sim run --json | head -c 0`: the reader leaves before the report
+/// is written, and with it the reader of the messages. That is no failure
+/// of the run, and nothing panics.
+#[test]
+fn a_reader_that_leaves_early_is_no_failure() {
+    let map = Path::new(env!("CARGO_MANIFEST_DIR")).join("../maps/nav2_depot.yaml");
+    for json in [true, false] {
+        let (reader, writer) = std::io::pipe().unwrap();
+        drop(reader);
+        let mut command = Command::new(env!("CARGO_BIN_EXE_fleet-sim"));
+        command.args(["run", "--robots", "1", "--policy", "nearest", "--cell-size", "0.25", "--max-steps", "20"]);
+        command.arg("--map").arg(&map);
+        if json {
+            command.arg("--json");
+        }
+        let status = command.stdout(writer.try_clone().unwrap()).stderr(writer).status().unwrap();
+        assert!(status.success(), "--json {json}: {status}");
+    }
+}

@@ -3,7 +3,8 @@
 //! It only speaks the public gRPC API, so everything it does a fleet manager
 //! or a script can do too. Exit codes: 0 done, 1 other failure, 2 bad usage,
 //! 3 not found, 4 refused in the current state (precondition, invalid
-//! argument, limits), 5 not authenticated or not allowed.
+//! argument, limits), 5 not authenticated or not allowed; 0 too when the
+//! reader of its output leaves early (`| head`).
 
 mod cli;
 mod output;
@@ -16,6 +17,8 @@ use std::process::ExitCode;
 
 use anyhow::{Context, anyhow, bail};
 use clap::Parser;
+use client_sim::console::StdoutError;
+use client_sim::errln;
 use exploration_proto::replicas::Replicas;
 use tonic::Code;
 use tonic::service::interceptor::InterceptedService;
@@ -38,10 +41,12 @@ async fn main() -> ExitCode {
     };
     match run(cli).await {
         Ok(()) => ExitCode::SUCCESS,
+        // `coordctl tasks 1 | head`: the reader had what it wanted.
+        Err(e) if StdoutError::is_reader_gone(&e) => ExitCode::SUCCESS,
         Err(e) => {
             match e.downcast_ref::<tonic::Status>() {
-                Some(status) => eprintln!("coordctl: {:?}: {}", status.code(), status.message()),
-                None => eprintln!("coordctl: {e:#}"),
+                Some(status) => errln!("coordctl: {:?}: {}", status.code(), status.message()),
+                None => errln!("coordctl: {e:#}"),
             }
             ExitCode::from(exit_code(&e))
         }
@@ -75,7 +80,7 @@ async fn connect(cli: &Cli) -> anyhow::Result<Missions> {
     for replica in cli.server.split(',') {
         if let Some(warning) = exploration_proto::client::plaintext_token_warning(replica.trim(), cli.token.as_deref())
         {
-            eprintln!("warning: {warning}");
+            errln!("warning: {warning}");
         }
     }
     let tls = match (&cli.tls_ca, &cli.tls_cert) {
@@ -125,7 +130,7 @@ async fn watch(api: &mut Missions, mission: u64, count: Option<usize>, out: &out
                                 continue;
                             }
                             last = key;
-                            out.view(&view);
+                            out.view(&view)?;
                             seen += 1;
                             if count.is_some_and(|count| seen >= count) {
                                 return Ok(());
@@ -190,11 +195,11 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Policies => {
             let policies = api.list_policies(pb::ListPoliciesRequest {}).await?.into_inner().policies;
-            out.policies(&policies);
+            out.policies(&policies)?;
         }
         Command::Robots { mission } => {
             let robots = robots(&mut api, mission).await?;
-            out.robots(&robots);
+            out.robots(&robots)?;
         }
         Command::Tasks { mission, robot, kind, open, limit, history } => {
             let robot_id = match robot {
@@ -210,7 +215,7 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             };
             let tasks = api.list_tasks(request).await?.into_inner().tasks;
             let names = robot_names(&mut api, mission).await?;
-            out.tasks(&tasks, &names, history);
+            out.tasks(&tasks, &names, history)?;
         }
         Command::Events { mission } => {
             let mut events = Vec::new();
@@ -225,14 +230,14 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
                 anyhow::ensure!(page.next_after_id > after_id, "the executive's pages of events do not move on");
                 after_id = page.next_after_id;
             }
-            out.events(&events);
+            out.events(&events)?;
         }
         Command::Pin { mission, robot, point, reason } => {
             let robot_id = robot_id(&mut api, mission, &robot).await?;
             let request =
                 pb::OverrideRobotRequest { robot_id, action: Some(Action::PinFrontier(point)), actor, reason };
             let robot = api.override_robot(request).await?.into_inner();
-            out.robots(std::slice::from_ref(&robot));
+            out.robots(std::slice::from_ref(&robot))?;
         }
         Command::Override { mission, robot, action, reason } => {
             let robot_id = robot_id(&mut api, mission, &robot).await?;
@@ -247,12 +252,12 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             };
             let request = pb::OverrideRobotRequest { robot_id, action: Some(action), actor, reason };
             let robot = api.override_robot(request).await?.into_inner();
-            out.robots(std::slice::from_ref(&robot));
+            out.robots(std::slice::from_ref(&robot))?;
         }
         Command::Forbid { mission, area, reason } => {
             let request = pb::ForbidRegionRequest { mission_id: mission, area: Some(area), actor, reason };
             let region = api.forbid_region(request).await?.into_inner();
-            out.regions(std::slice::from_ref(&region));
+            out.regions(std::slice::from_ref(&region))?;
         }
         Command::Rooms { mission, map, online: _, reason } => {
             let label_runs = match map {
@@ -268,17 +273,17 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
                 None => Vec::new(),
             };
             let request = pb::SetGivenSegmentationRequest { mission_id: mission, label_runs, actor, reason };
-            out.mission(&api.set_given_segmentation(request).await?.into_inner());
+            out.mission(&api.set_given_segmentation(request).await?.into_inner())?;
         }
         Command::Allow { mission, region, reason } => {
             let request = pb::AllowRegionRequest { mission_id: mission, region_id: region, actor, reason };
             let mission = api.allow_region(request).await?.into_inner();
-            out.mission(&mission);
+            out.mission(&mission)?;
         }
         Command::Watch { mission, count } => watch(&mut api, mission, count, &out).await?,
         Command::Backup { file } => {
             let bytes = backup(&mut api, &file).await?;
-            out.done(&format!("wrote {} ({bytes} bytes, checked)", file.display()));
+            out.done(&format!("wrote {} ({bytes} bytes, checked)", file.display()))?;
         }
         Command::Map(MapCommand::Export { mission, png, px, segments }) => {
             let snapshot = api.get_map(pb::GetMapRequest { mission_id: mission }).await?.into_inner();
@@ -291,7 +296,7 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             };
             let picture = picture::render(&snapshot, &details.forbidden_regions, labels.as_deref(), px)?;
             picture.save(&png).with_context(|| format!("cannot write {}", png.display()))?;
-            out.done(&format!("wrote {}", png.display()));
+            out.done(&format!("wrote {}", png.display()))?;
         }
     }
     Ok(())
@@ -307,11 +312,11 @@ async fn mission_command(
     match command {
         MissionCommand::List => {
             let missions = api.list_missions(pb::ListMissionsRequest {}).await?.into_inner().missions;
-            out.missions(&missions);
+            out.missions(&missions)?;
         }
         MissionCommand::Show { mission } => {
             let mission = api.get_mission(pb::GetMissionRequest { mission_id: mission }).await?.into_inner();
-            out.mission(&mission);
+            out.mission(&mission)?;
         }
         MissionCommand::Create {
             name,
@@ -348,15 +353,15 @@ async fn mission_command(
                 ..Default::default()
             };
             let mission = api.create_mission(request).await?.into_inner();
-            out.mission(&mission);
+            out.mission(&mission)?;
         }
         MissionCommand::Pause { mission, reason } => {
             let request = pb::MissionControlRequest { mission_id: mission, actor, reason };
-            out.mission(&api.pause_mission(request).await?.into_inner());
+            out.mission(&api.pause_mission(request).await?.into_inner())?;
         }
         MissionCommand::Resume { mission, reason } => {
             let request = pb::MissionControlRequest { mission_id: mission, actor, reason };
-            out.mission(&api.resume_mission(request).await?.into_inner());
+            out.mission(&api.resume_mission(request).await?.into_inner())?;
         }
         MissionCommand::Policy { mission, name, params, reason } => {
             let mission = match name {
@@ -370,7 +375,7 @@ async fn mission_command(
                 }
                 None => bail!(Usage("--param needs the policy's name".into())),
             };
-            out.policy(&mission);
+            out.policy(&mission)?;
         }
     }
     Ok(())

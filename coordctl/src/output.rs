@@ -4,7 +4,12 @@ use std::collections::HashMap;
 
 use serde_json::{Value, json};
 
+use client_sim::console::StdoutError;
+use client_sim::outln;
 use exploration_proto::v1 as pb;
+
+/// Whether a result reached standard output.
+pub type Printed = Result<(), StdoutError>;
 
 /// Where results go, and in what form.
 #[derive(Debug, Clone, Copy)]
@@ -13,7 +18,7 @@ pub struct Output {
 }
 
 impl Output {
-    pub fn missions(&self, missions: &[pb::Mission]) {
+    pub fn missions(&self, missions: &[pb::Mission]) -> Printed {
         if self.json {
             return print_json(Value::Array(missions.iter().map(mission_json).collect()));
         }
@@ -30,58 +35,63 @@ impl Output {
                 m.replans.to_string(),
             ]);
         }
-        table.print();
+        table.print()
     }
 
-    pub fn mission(&self, m: &pb::Mission) {
+    pub fn mission(&self, m: &pb::Mission) -> Printed {
         if self.json {
             return print_json(mission_json(m));
         }
         let frame = m.frame.unwrap_or_default();
         let origin = frame.origin.unwrap_or_default();
         let lifecycle = m.lifecycle.unwrap_or_default();
-        println!("mission {} `{}`: {}", m.id, m.name, mission_state(m.state()));
-        println!("  policy      {}", policy_text(m.policy.as_ref()));
-        println!(
+        outln!("mission {} `{}`: {}", m.id, m.name, mission_state(m.state()))?;
+        outln!("  policy      {}", policy_text(m.policy.as_ref()))?;
+        outln!(
             "  frame       {} x {} cells of {} m from ({}, {})",
-            frame.width, frame.height, frame.resolution, origin.x, origin.y
-        );
-        println!("  robots      {}", m.robots);
-        println!("  map         {} known cells, {} frontier cells", m.known_cells, m.frontier_cells);
+            frame.width,
+            frame.height,
+            frame.resolution,
+            origin.x,
+            origin.y
+        )?;
+        outln!("  robots      {}", m.robots)?;
+        outln!("  map         {} known cells, {} frontier cells", m.known_cells, m.frontier_cells)?;
         if m.given_segmentation {
-            println!("  rooms       given (the segmentation policy plans on them; `rooms {} --online` undoes)", m.id);
+            outln!("  rooms       given (the segmentation policy plans on them; `rooms {} --online` undoes)", m.id)?;
         }
-        println!("  activity    {} map updates, {} replannings", m.map_updates, m.replans);
-        println!(
+        outln!("  activity    {} map updates, {} replannings", m.map_updates, m.replans)?;
+        outln!(
             "  lifecycle   lease {} s, stall {} s, rendezvous {}",
             lifecycle.lease_s,
             lifecycle.stall_s,
             lifecycle.rendezvous.map_or("each robot's start".into(), |p| point_text(Some(p)))
-        );
+        )?;
         if m.scoped_by_communication {
-            println!("  coordinated per connected sub-team (limited communication)");
+            outln!("  coordinated per connected sub-team (limited communication)")?;
         }
         for region in &m.forbidden_regions {
-            println!("  forbidden   #{} {} by {} ({})", region.id, rect_text(region.area), region.actor, region.reason);
+            outln!("  forbidden   #{} {} by {} ({})", region.id, rect_text(region.area), region.actor, region.reason)?;
         }
         for left in &m.leftovers {
-            println!(
+            outln!(
                 "  left over   {} frontier cells near {}: {}",
                 left.cells,
                 point_text(left.position),
                 leftover_reason(left.reason())
-            );
+            )?;
         }
+        Ok(())
     }
 
-    pub fn policy(&self, m: &pb::Mission) {
+    pub fn policy(&self, m: &pb::Mission) -> Printed {
         if self.json {
             return print_json(json!({ "mission_id": m.id, "policy": policy_json(m.policy.as_ref()) }));
         }
-        println!("mission {}: {}", m.id, policy_text(m.policy.as_ref()));
+        outln!("mission {}: {}", m.id, policy_text(m.policy.as_ref()))
     }
 
-    pub fn policies(&self, policies: &[pb::PolicyInfo]) {
+    pub fn policies(&self, policies: &[pb::PolicyInfo]) -> Printed {
         if self.json {
             let list = policies
                 .iter()
@@ -97,14 +107,15 @@ impl Output {
             return print_json(Value::Array(list));
         }
         for p in policies {
-            println!("{:<14}{}", p.name, p.description);
+            outln!("{:<14}{}", p.name, p.description)?;
             for q in &p.params {
-                println!("    {:<24}{} (default {}, {} ..= {})", q.name, q.description, q.default_value, q.min, q.max);
+                outln!("    {:<24}{} (default {}, {} ..= {})", q.name, q.description, q.default_value, q.min, q.max)?;
             }
         }
+        Ok(())
     }
 
-    pub fn robots(&self, robots: &[pb::Robot]) {
+    pub fn robots(&self, robots: &[pb::Robot]) -> Printed {
         if self.json {
             return print_json(Value::Array(robots.iter().map(robot_json).collect()));
         }
@@ -124,10 +135,10 @@ impl Output {
                 format!("{:.1} m", r.distance_m),
             ]);
         }
-        table.print();
+        table.print()
     }
 
-    pub fn tasks(&self, tasks: &[pb::Task], names: &HashMap<u64, String>, history: bool) {
+    pub fn tasks(&self, tasks: &[pb::Task], names: &HashMap<u64, String>, history: bool) -> Printed {
         let name = |id: u64| names.get(&id).cloned().unwrap_or_else(|| id.to_string());
         if self.json {
             return print_json(Value::Array(tasks.iter().map(|t| task_json(t, &name(t.robot_id))).collect()));
@@ -161,10 +172,10 @@ impl Output {
                 }
             }
         }
-        table.print();
+        table.print()
     }
 
-    pub fn events(&self, events: &[pb::MissionEvent]) {
+    pub fn events(&self, events: &[pb::MissionEvent]) -> Printed {
         if self.json {
             let list = events
                 .iter()
@@ -177,23 +188,24 @@ impl Output {
             let at = e.at.map(|t| t.to_string()).unwrap_or_default();
             table.row(vec![e.id.to_string(), at, e.kind.clone(), e.actor.clone(), e.detail.clone()]);
         }
-        table.print();
+        table.print()
     }
 
-    pub fn regions(&self, regions: &[pb::Region]) {
+    pub fn regions(&self, regions: &[pb::Region]) -> Printed {
         if self.json {
             return print_json(Value::Array(regions.iter().map(region_json).collect()));
         }
         for r in regions {
-            println!("region #{} of mission {}: {} forbidden by {}", r.id, r.mission_id, rect_text(r.area), r.actor);
+            outln!("region #{} of mission {}: {} forbidden by {}", r.id, r.mission_id, rect_text(r.area), r.actor)?;
         }
+        Ok(())
     }
 
-    pub fn view(&self, view: &pb::MissionView) {
-        let Some(m) = &view.mission else { return };
+    pub fn view(&self, view: &pb::MissionView) -> Printed {
+        let Some(m) = &view.mission else { return Ok(()) };
         if self.json {
             let robots: Vec<Value> = view.robots.iter().map(robot_json).collect();
-            return println!("{}", json!({ "mission": mission_json(m), "robots": robots }));
+            return outln!("{}", json!({ "mission": mission_json(m), "robots": robots }));
         }
         let robots: Vec<String> = view
             .robots
@@ -209,7 +221,7 @@ impl Output {
                 format!("{} {doing}", r.name)
             })
             .collect();
-        println!(
+        outln!(
             "{} {} frontier={} known={} replans={} | {}",
             prost_types::Timestamp::from(std::time::SystemTime::now()),
             mission_state(m.state()),
@@ -217,20 +229,16 @@ impl Output {
             m.known_cells,
             m.replans,
             robots.join(", ")
-        );
+        )
     }
 
-    pub fn done(&self, what: &str) {
-        if self.json {
-            print_json(json!({ "done": what }));
-        } else {
-            println!("{what}");
-        }
+    pub fn done(&self, what: &str) -> Printed {
+        if self.json { print_json(json!({ "done": what })) } else { outln!("{what}") }
     }
 }
 
-fn print_json(value: Value) {
-    println!("{}", serde_json::to_string_pretty(&value).expect("JSON values serialize"));
+fn print_json(value: Value) -> Printed {
+    outln!("{}", serde_json::to_string_pretty(&value).expect("JSON values serialize"))
 }
 
 /// Columns padded to their widest cell.
@@ -247,14 +255,15 @@ impl Table {
         self.rows.push(cells);
     }
 
-    fn print(&self) {
+    fn print(&self) -> Printed {
         let columns = self.rows[0].len();
         let widths: Vec<usize> =
             (0..columns).map(|c| self.rows.iter().map(|r| r[c].chars().count()).max().unwrap_or(0)).collect();
         for row in &self.rows {
             let line: Vec<String> = row.iter().zip(&widths).map(|(cell, w)| format!("{cell:<w$}")).collect();
-            println!("{}", line.join("  ").trim_end());
+            outln!("{}", line.join("  ").trim_end())?;
         }
+        Ok(())
     }
 }
 

@@ -13,14 +13,40 @@ use exploration_proto::v1::fleet_client::FleetClient;
 /// Alice's operator token.
 const TOKEN: &str = "alice-ops-token-0123";
 
-/// Runs coordctl with `args` against `url` (with the operator token unless
-/// `token` says otherwise), off the async runtime.
-async fn coordctl(url: &str, token: Option<&str>, args: &[&str]) -> Output {
+/// coordctl with `args` against `url`, with the operator token unless
+/// `token` says otherwise.
+fn command(url: &str, token: Option<&str>, args: &[&str]) -> std::process::Command {
     let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_coordctl"));
     command.env_remove("COORDINATOR_TOKEN").env("COORDINATOR_URL", url).arg("--as").arg("someone-else").args(args);
     if let Some(token) = token {
         command.env("COORDINATOR_TOKEN", token);
     }
+    command
+}
+
+/// Runs coordctl with `args` against `url` (with the operator token unless
+/// `token` says otherwise), off the async runtime.
+async fn coordctl(url: &str, token: Option<&str>, args: &[&str]) -> Output {
+    let mut command = command(url, token, args);
+    tokio::task::spawn_blocking(move || command.output().unwrap()).await.unwrap()
+}
+
+/// Which of coordctl's outputs nobody reads.
+enum Unread {
+    Stdout,
+    Stderr,
+}
+
+/// Runs coordctl as [`coordctl`] does, with one output a pipe whose reader
+/// has gone (`coordctl events 1 | head` once `head` has its ten lines).
+async fn coordctl_unread(url: &str, args: &[&str], unread: Unread) -> Output {
+    let mut command = command(url, Some(TOKEN), args);
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    match unread {
+        Unread::Stdout => command.stdout(writer),
+        Unread::Stderr => command.stderr(writer),
+    };
     tokio::task::spawn_blocking(move || command.output().unwrap()).await.unwrap()
 }
 
@@ -191,6 +217,14 @@ async fn an_operator_lists_overrides_forbids_and_exports_the_map() {
     let ids: Vec<u64> = events.as_array().unwrap().iter().map(|e| e["id"].as_u64().unwrap()).collect();
     assert!(ids.len() > 1_002, "every event, not the first page: {}", ids.len());
     assert!(ids.windows(2).all(|w| w[0] < w[1]), "oldest first, none twice");
+
+    // A reader that leaves early is no failure, and an error message nobody
+    // reads changes nothing but the message: no panic either way.
+    let head = coordctl_unread(&url, &["events", &mission], Unread::Stdout).await;
+    assert_eq!(head.status.code(), Some(0), "{}", String::from_utf8_lossy(&head.stderr));
+    assert!(head.stderr.is_empty(), "{}", String::from_utf8_lossy(&head.stderr));
+    let unheard = coordctl_unread(&url, &["override", &mission, "nobody", "hold"], Unread::Stderr).await;
+    assert_eq!(unheard.status.code(), Some(3));
 
     stop.cancel();
     server.await.unwrap().unwrap();

@@ -221,7 +221,7 @@ pub async fn run_experiment(
     let todo: Vec<RunSpec> = matrix(&experiment).into_iter().filter(|r| !done.contains(&r.id)).collect();
     let total = todo.len();
     if progress {
-        eprintln!("{}: {} runs to do, {} already done", experiment.name, total, done.len());
+        crate::errln!("{}: {} runs to do, {} already done", experiment.name, total, done.len());
     }
     let started = Instant::now();
     let semaphore = Arc::new(tokio::sync::Semaphore::new(jobs.max(1)));
@@ -296,7 +296,7 @@ fn record(
             Ok(r) => format!("{} steps{}", r.steps, if r.completed { "" } else { " (incomplete)" }),
             Err(e) => format!("FAILED: {e}"),
         };
-        eprintln!("[{finished}/{total}] {} — {status} — elapsed {elapsed:.0} s, ETA {eta:.0} s", spec.id);
+        crate::errln!("[{finished}/{total}] {} — {status} — elapsed {elapsed:.0} s, ETA {eta:.0} s", spec.id);
     }
     Ok(())
 }

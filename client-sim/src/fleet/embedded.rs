@@ -84,7 +84,7 @@ impl EmbeddedExecutive {
                 std::fs::write(&tokens, line).map_err(|e| failed(&e))?;
                 config.operator_tokens_file = Some(tokens);
                 let url = http.local_addr().map_err(|e| failed(&e))?;
-                eprintln!("live view: http://{url}/  (read-only token: {viewer})");
+                crate::errln!("live view: http://{url}/  (read-only token: {viewer})");
                 Some(http)
             }
             None => None,

@@ -191,7 +191,7 @@ pub async fn run(config: &RunConfig) -> Result<RunReport, SimError> {
     let result = run_against(config, world, &url, token.as_deref(), clock).await;
     if let Some(executive) = embedded {
         if config.linger && config.view.is_some() {
-            eprintln!("the run is over; the live view stays up until Ctrl-C");
+            crate::errln!("the run is over; the live view stays up until Ctrl-C");
             let _ = tokio::signal::ctrl_c().await;
         }
         executive.stop().await?;
@@ -289,7 +289,7 @@ async fn run_against(
     }
     if config.progress {
         let frame = world.frame;
-        eprintln!(
+        crate::errln!(
             "mission {} on {} ({}×{} cells of {} m, {} reachable), {} robots, policy {}",
             mission.id,
             world.name,

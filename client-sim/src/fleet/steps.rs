@@ -160,7 +160,7 @@ impl Exploration {
             }
         }
         if config.progress && self.step.is_multiple_of(250) {
-            eprintln!("step {:>6}  coverage {:>5.1} %", self.step, 100.0 * coverage);
+            crate::errln!("step {:>6}  coverage {:>5.1} %", self.step, 100.0 * coverage);
         }
     }
 
