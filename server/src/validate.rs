@@ -128,20 +128,37 @@ pub fn frame(resolution: f64, origin: Point2, width: i64, height: i64, prefix: &
 pub fn on_map(point: Point2, frame: &GridFrame, field: &str) -> Result<Point2, Invalid> {
     let point = Point2::new(finite(point.x, &format!("{field}.x"))?, finite(point.y, &format!("{field}.y"))?);
     if frame.cell_from_world(&point).is_none() {
-        return Err(Invalid::new(
-            field,
-            format!(
-                "({:.3}, {:.3}) lies outside the mission map, which spans x {:.3}..{:.3}, y {:.3}..{:.3}",
-                point.x,
-                point.y,
-                frame.origin.x,
-                frame.origin.x + f64::from(frame.width) * frame.resolution,
-                frame.origin.y,
-                frame.origin.y + f64::from(frame.height) * frame.resolution,
-            ),
-        ));
+        return Err(Invalid::new(field, outside_map(point, frame)));
     }
     Ok(point)
+}
+
+/// Why `point` is refused: it lies off `frame`, which spans what it spans.
+pub fn outside_map(point: Point2, frame: &GridFrame) -> String {
+    let spans = |origin: f64, cells: u32| (Metres(origin), Metres(origin + f64::from(cells) * frame.resolution));
+    let ((x0, x1), (y0, y1)) = (spans(frame.origin.x, frame.width), spans(frame.origin.y, frame.height));
+    format!("{} lies outside the mission map, which spans x {x0}..{x1}, y {y0}..{y1}", Place(point))
+}
+
+/// Metres for a message: three decimals, or scientific notation where a
+/// careless client's 1e308 would take three hundred digits.
+#[derive(Debug, Clone, Copy)]
+pub struct Metres(pub f64);
+
+impl std::fmt::Display for Metres {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.0.abs() < 1e9 { write!(f, "{:.3}", self.0) } else { write!(f, "{:e}", self.0) }
+    }
+}
+
+/// A point for a message, `(x, y)` in [`Metres`].
+#[derive(Debug, Clone, Copy)]
+pub struct Place(pub Point2);
+
+impl std::fmt::Display for Place {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "({}, {})", Metres(self.0.x), Metres(self.0.y))
+    }
 }
 
 /// A robot's capabilities; `prefix` names the message or table.
@@ -177,6 +194,21 @@ pub const LIFECYCLE_S: (f64, f64) = (0.1, 86_400.0);
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A careless client's 1e308 m is named in a dozen characters, not three
+    /// hundred digits; ordinary points keep their millimetres.
+    #[test]
+    fn points_refused_are_named_briefly() {
+        let frame = GridFrame::new(0.1, Point2::new(-1.0, 2.0), 30, 40);
+        let far = on_map(Point2::new(1e308, 5.0), &frame, "goto").unwrap_err();
+        assert_eq!(far.field, "goto");
+        assert_eq!(
+            far.problem,
+            "(1e308, 5.000) lies outside the mission map, which spans x -1.000..2.000, y 2.000..6.000"
+        );
+        assert_eq!(Place(Point2::new(-0.0625, 12.5)).to_string(), "(-0.062, 12.500)");
+        assert_eq!(Metres(-2.5e9).to_string(), "-2.5e9");
+    }
 
     #[test]
     fn names_are_printable_and_bounded() {

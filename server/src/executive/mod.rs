@@ -406,8 +406,8 @@ impl Executive {
         }
         if mission.record().spec.frame.cell_from_world(&spec.pose.position).is_none() {
             return Err(Error::InvalidArgument(format!(
-                "pose ({:.3}, {:.3}) lies outside the map of mission {mission_id}",
-                spec.pose.position.x, spec.pose.position.y
+                "pose {} lies outside the map of mission {mission_id}",
+                crate::validate::Place(spec.pose.position)
             )));
         }
         // The token names the robot, whose identity the store gives inside

@@ -16,6 +16,7 @@ use crate::domain::{
 };
 use crate::error::Error;
 use crate::store::Changeset;
+use crate::validate::Place;
 
 /// How far from the point an operator gives a frontier to pin may lie, metres.
 const PIN_RADIUS_M: f64 = 1.0;
@@ -139,17 +140,9 @@ impl Mission {
     ) -> Result<TaskDraft, Error> {
         let frame = &self.record.spec.frame;
         let inside = |p: Point2, what: &str| {
-            frame.cell_from_world(&p).ok_or_else(|| {
-                Error::InvalidArgument(format!(
-                    "{what} ({:.2}, {:.2}) lies outside the mission map, which spans x {:.2}..{:.2}, y {:.2}..{:.2}",
-                    p.x,
-                    p.y,
-                    frame.origin.x,
-                    frame.origin.x + f64::from(frame.width) * frame.resolution,
-                    frame.origin.y,
-                    frame.origin.y + f64::from(frame.height) * frame.resolution
-                ))
-            })
+            frame
+                .cell_from_world(&p)
+                .ok_or_else(|| Error::InvalidArgument(format!("{what} {}", crate::validate::outside_map(p, frame))))
         };
         let draft = |kind: TaskKind, target: Point2| TaskDraft {
             kind,
@@ -166,9 +159,9 @@ impl Mission {
                 let cell = inside(p, "target")?;
                 if self.fusion.grid().class(cell) == CellClass::Occupied {
                     return Err(Error::FailedPrecondition(format!(
-                        "({:.2}, {:.2}) is an obstacle in the fused map; pick a free or unknown point \
+                        "{} is an obstacle in the fused map; pick a free or unknown point \
                          (`coordctl map export` draws the map)",
-                        p.x, p.y
+                        Place(p)
                     )));
                 }
                 draft(TaskKind::Goto, frame.world_from_cell(cell))
@@ -176,8 +169,9 @@ impl Mission {
             Override::ExploreRegion(min, max) => {
                 let region = self.cell_rect(min, max).ok_or_else(|| {
                     Error::InvalidArgument(format!(
-                        "region ({:.2}, {:.2})..({:.2}, {:.2}) does not overlap the mission map",
-                        min.x, min.y, max.x, max.y
+                        "region {}..{} does not overlap the mission map",
+                        Place(min),
+                        Place(max)
                     ))
                 })?;
                 // Heads for the centre until the next replanning picks the region's nearest frontier.
@@ -200,9 +194,8 @@ impl Mission {
                     .min_by_key(|c| (c.distance_squared(at), *c))
                     .ok_or_else(|| {
                         Error::FailedPrecondition(format!(
-                            "no frontier within {PIN_RADIUS_M} m of ({:.2}, {:.2}); `coordctl map export` draws \
-                             the frontier",
-                            p.x, p.y
+                            "no frontier within {PIN_RADIUS_M} m of {}; `coordctl map export` draws the frontier",
+                            Place(p)
                         ))
                     })?;
                 if let Some(other) = self.open_tasks.values().find(|t| {
@@ -264,8 +257,9 @@ impl Mission {
     ) -> Result<(Changeset, Region), Error> {
         let Some(cells) = self.cell_rect(min, max) else {
             return Err(Error::InvalidArgument(format!(
-                "region ({:.2}, {:.2})..({:.2}, {:.2}) does not overlap the mission map",
-                min.x, min.y, max.x, max.y
+                "region {}..{} does not overlap the mission map",
+                Place(min),
+                Place(max)
             )));
         };
         // Kept as the part on the map: the cells it forbids, in metres.

@@ -68,15 +68,7 @@ impl Mission {
     fn check_pose(&self, pose: &Pose) -> Result<(), Error> {
         let frame = &self.record.spec.frame;
         if frame.cell_from_world(&pose.position).is_none() {
-            return Err(Error::InvalidArgument(format!(
-                "pose ({:.3}, {:.3}) lies outside the mission map, which spans x {:.3}..{:.3}, y {:.3}..{:.3}",
-                pose.position.x,
-                pose.position.y,
-                frame.origin.x,
-                frame.origin.x + f64::from(frame.width) * frame.resolution,
-                frame.origin.y,
-                frame.origin.y + f64::from(frame.height) * frame.resolution,
-            )));
+            return Err(Error::InvalidArgument(format!("pose {}", crate::validate::outside_map(pose.position, frame))));
         }
         Ok(())
     }

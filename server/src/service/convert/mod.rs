@@ -23,6 +23,7 @@ use crate::domain::{
 };
 use crate::error::Error;
 use crate::validate;
+use crate::validate::Place;
 
 /// Most patches in one map update.
 pub const MAX_PATCHES: usize = 4_096;
@@ -166,8 +167,9 @@ pub fn area(r: Option<pb::Rect>, field: &str) -> Result<(Point2, Point2), Error>
     let max = Point2::new(finite(r.max_x, &format!("{field}.max_x"))?, finite(r.max_y, &format!("{field}.max_y"))?);
     if min.x >= max.x || min.y >= max.y {
         return Err(invalid(format!(
-            "{field} runs from ({:.2}, {:.2}) to ({:.2}, {:.2}); min must lie below max on both axes",
-            min.x, min.y, max.x, max.y
+            "{field} runs from {} to {}; min must lie below max on both axes",
+            Place(min),
+            Place(max)
         )));
     }
     Ok((min, max))
