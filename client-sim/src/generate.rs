@@ -9,7 +9,7 @@ use exploration::grid::{Cell, GridFrame};
 use exploration::math::Point2;
 use exploration::rng::SplitMix64;
 
-use crate::world::{StartChoice, World, WorldError};
+use crate::world::{StartChoice, World, WorldError, check_grid};
 
 /// What to generate.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -33,17 +33,26 @@ pub enum Generator {
 }
 
 impl Generator {
-    /// Parses `unstructured`, `unstructured:0.15`, `office`, `corridor`, `maze`, `maze:1.2`, `empty`.
-    pub fn parse(s: &str) -> Option<Self> {
+    /// Parses `unstructured`, `unstructured:0.15`, `office`, `corridor`, `maze`, `maze:1.2`, `empty`;
+    /// the error says what was expected.
+    pub fn parse(s: &str) -> Result<Self, String> {
         let (kind, arg) = s.split_once(':').map_or((s, None), |(k, a)| (k, Some(a)));
-        let number = |default: f64| arg.map_or(Some(default), |a| a.trim().parse().ok());
-        Some(match kind.trim() {
-            "unstructured" => Self::Unstructured { density: number(0.15)? },
+        // The number after the colon, within `range` (which the generator needs).
+        let number = |default: f64, what: &str, range: std::ops::RangeInclusive<f64>| {
+            let value = arg.map_or(Ok(default), |a| a.trim().parse::<f64>().map_err(|e| format!("{s:?}: {e}")))?;
+            if range.contains(&value) {
+                Ok(value)
+            } else {
+                Err(format!("{s:?}: the {what} must lie in [{}, {}]", range.start(), range.end()))
+            }
+        };
+        Ok(match kind.trim() {
+            "unstructured" => Self::Unstructured { density: number(0.15, "share of the area covered", 0.0..=0.9)? },
             "office" => Self::Office,
             "corridor" => Self::Corridor,
-            "maze" => Self::Maze { corridor_m: number(1.2)? },
+            "maze" => Self::Maze { corridor_m: number(1.2, "corridor width in metres", 0.15..=100.0)? },
             "empty" => Self::Empty,
-            _ => return None,
+            _ => return Err(format!("{s:?}: expected unstructured, office, corridor, maze or empty")),
         })
     }
 
@@ -101,6 +110,7 @@ pub fn generate(
     seed: u64,
     start: StartChoice,
 ) -> Result<World, WorldError> {
+    check_grid(&generator.name(), width_m, height_m, cell)?;
     let mut canvas = Canvas::new(width_m, height_m, cell);
     let mut rng = SplitMix64::new(seed ^ 0x6765_6E65_7261_7465);
     let (w, h) = (canvas.frame.width as i32, canvas.frame.height as i32);
@@ -261,7 +271,12 @@ mod tests {
         let walls =
             u.blocked.iter().filter(|b| **b).count() as f64 - 2.0 * f64::from(u.frame.width + u.frame.height) + 4.0;
         assert!((walls / inner - 0.15).abs() < 0.02, "density {}", walls / inner);
-        assert!(Generator::parse("lava").is_none());
+        assert!(Generator::parse("lava").is_err());
+        // Numbers the generators cannot honour are refused, not clamped or wrapped.
+        for bad in ["unstructured:2", "unstructured:-1", "unstructured:NaN", "maze:0", "maze:1e30", "maze:x"] {
+            assert!(Generator::parse(bad).is_err(), "{bad}");
+        }
+        assert_eq!(Generator::parse("maze:0.8"), Ok(Generator::Maze { corridor_m: 0.8 }));
     }
 
     /// The office's rooms are the generator's own: the corridor, and one

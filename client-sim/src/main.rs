@@ -234,9 +234,7 @@ impl WorldArgs {
         match (&self.map, &self.world, default) {
             (Some(map), None, _) => Ok(WorldSpec::Map(map.clone())),
             (None, Some(generator), _) => {
-                let generator = Generator::parse(generator).with_context(|| {
-                    format!("--world {generator:?}: expected unstructured, office, corridor, maze or empty")
-                })?;
+                let generator = Generator::parse(generator).map_err(|e| anyhow::anyhow!("--world {e}"))?;
                 let (w, h) = parse_size(&self.size)?;
                 Ok(WorldSpec::Generated { generator, width_m: w, height_m: h })
             }

@@ -46,6 +46,33 @@ pub enum WorldError {
     /// Nothing to explore.
     #[error("{0}")]
     Empty(String),
+    /// A size or cell size no executive would take.
+    #[error("{0}")]
+    Size(String),
+}
+
+/// Refuses a world of `width_m` × `height_m` at `cell` metres that is not a
+/// grid an executive takes (coordinator::validate's limits), before its
+/// cells are allocated: a mistyped `--cell-size 0` or `--size 1e9x1e9`
+/// would otherwise ask for more memory than there is.
+pub fn check_grid(name: &str, width_m: f64, height_m: f64, cell: f64) -> Result<(), WorldError> {
+    use coordinator::validate::{MAX_GRID_CELLS, MAX_GRID_SIDE};
+    let refuse = |why: String| Err(WorldError::Size(format!("{name}: {why}")));
+    if !(cell.is_finite() && cell > 0.0) {
+        return refuse(format!("the cell size must be a positive number of metres, not {cell}"));
+    }
+    if !(width_m.is_finite() && width_m > 0.0 && height_m.is_finite() && height_m > 0.0) {
+        return refuse(format!("the size must be positive metres, not {width_m} × {height_m}"));
+    }
+    let (columns, rows) = ((width_m / cell).ceil(), (height_m / cell).ceil());
+    let side = f64::from(MAX_GRID_SIDE);
+    if columns > side || rows > side || columns * rows > MAX_GRID_CELLS as f64 {
+        return refuse(format!(
+            "{width_m:.2} × {height_m:.2} m in cells of {cell} m is {columns} × {rows} cells; an executive takes at \
+             most {MAX_GRID_SIDE} a side and {MAX_GRID_CELLS} in all (give larger cells)"
+        ));
+    }
+    Ok(())
 }
 
 /// What a map_server YAML says.
@@ -185,6 +212,7 @@ impl World {
         start: StartChoice,
         seed: u64,
     ) -> Result<Self, WorldError> {
+        check_grid(name, width as f64 * resolution, height as f64 * resolution, cell_size)?;
         let scale = cell_size / resolution;
         let cols = ((width as f64) / scale).ceil().max(1.0) as u32;
         let rows = ((height as f64) / scale).ceil().max(1.0) as u32;
@@ -459,6 +487,26 @@ fn chessboard_clearance(frame: &GridFrame, blocked: &[bool]) -> Vec<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A cell size or a size that would not fit an executive is refused
+    /// before the grid is allocated (these asked for terabytes, or for a
+    /// capacity that overflows), and the largest grid it takes is built.
+    #[test]
+    fn worlds_no_executive_takes_are_refused_before_allocating() {
+        let free = vec![true; 4];
+        for cell in [0.0, -0.1, 1e-9, f64::NAN, f64::INFINITY] {
+            let refused = World::from_pixels("tiny", 2, 2, &free, 0.05, Point2::origin(), cell, StartChoice::Auto, 1);
+            assert!(matches!(refused, Err(WorldError::Size(_))), "cell {cell}: {refused:?}");
+        }
+        use crate::generate::{Generator, generate};
+        for (w, h) in [(1e9, 10.0), (0.0, 10.0), (f64::NAN, 10.0), (3001.0, 3001.0)] {
+            let refused = generate(Generator::Empty, w, h, 0.15, 1, StartChoice::Auto);
+            assert!(matches!(refused, Err(WorldError::Size(_))), "{w} × {h}: {refused:?}");
+        }
+        assert!(check_grid("edge", 2500.0, 156.25, 0.125).is_ok(), "20 000 × 1 250 cells, the limits");
+        assert!(check_grid("edge", 2500.0, 156.375, 0.125).is_err(), "one row more");
+        assert!(check_grid("edge", 2500.125, 1.0, 0.125).is_err(), "one column more");
+    }
 
     #[test]
     fn coarsening_keeps_one_pixel_walls_closed() {

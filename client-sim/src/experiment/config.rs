@@ -275,8 +275,10 @@ impl Experiment {
         for w in &experiment.worlds {
             match (&w.map, &w.generator) {
                 (Some(_), None) => {}
-                (None, Some(g)) if Generator::parse(g).is_some() => {}
-                _ => return Err(bad(format!("world {:?}: give either map or a known generator", w.name))),
+                (None, Some(g)) => {
+                    Generator::parse(g).map_err(|e| bad(format!("world {:?}: generator {e}", w.name)))?;
+                }
+                _ => return Err(bad(format!("world {:?}: give either map or generator", w.name))),
             }
         }
         for r in &experiment.comm_ranges {

@@ -102,11 +102,9 @@ pub(crate) fn run_config(
             };
             WorldSpec::Map(path)
         }
-        (None, Some(g)) => WorldSpec::Generated {
-            generator: Generator::parse(g).ok_or("unknown generator")?,
-            width_m: world.width_m,
-            height_m: world.height_m,
-        },
+        (None, Some(g)) => {
+            WorldSpec::Generated { generator: Generator::parse(g)?, width_m: world.width_m, height_m: world.height_m }
+        }
         (None, None) => return Err("a world needs a map or a generator".into()),
     };
     let sim = &experiment.sim;
