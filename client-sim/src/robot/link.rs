@@ -22,11 +22,17 @@ use exploration_proto::v1::fleet_client::FleetClient;
 use super::{Bidding, Client, Faults, RobotError, RobotModel, SimRobot, TeamMap};
 use crate::world::World;
 
+/// Whether a refused call may succeed if made again: the executive was
+/// unreachable or busy. RESOURCE_EXHAUSTED is that only with a retry hint
+/// (load shed); without one it is a limit (a mission's robots, the
+/// executive's cells, a full disk) that asking again for two minutes would
+/// not lift, as the Python client reads it too.
 fn retryable(status: &Status) -> bool {
-    matches!(
-        status.code(),
-        Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded | Code::ResourceExhausted
-    )
+    match status.code() {
+        Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded => true,
+        Code::ResourceExhausted => retry_pushback(status).is_some(),
+        _ => false,
+    }
 }
 
 impl SimRobot {
@@ -355,5 +361,21 @@ where
             }
             Err(status) => return Err(RobotError::Rpc { what, status }),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_shed_calls_and_outages_are_tried_again() {
+        let mut shed = Status::resource_exhausted("busy");
+        shed.metadata_mut().insert(exploration_proto::client::RETRY_PUSHBACK_METADATA, 100u64.into());
+        assert!(retryable(&shed));
+        assert!(retryable(&Status::unavailable("restarting")));
+        let limit = Status::resource_exhausted("mission 1 already has 1000 robots, the limit");
+        assert!(!retryable(&limit), "a limit without a hint is final");
+        assert!(!retryable(&Status::invalid_argument("pose.x is NaN")));
     }
 }
