@@ -252,8 +252,10 @@ async fn main() -> anyhow::Result<()> {
         args.idle_timeout.is_finite() && args.idle_timeout > 0.0 && args.idle_timeout <= 1e6,
         "--idle-timeout must be a number of seconds in (0, 1e6]"
     );
+    // 0 would refuse every caller, the health checks included.
+    anyhow::ensure!(args.max_connections >= 1, "--max-connections must be at least 1");
     config.connections = ConnectionLimits {
-        max_connections: args.max_connections.max(1),
+        max_connections: args.max_connections,
         idle_timeout: Duration::from_secs_f64(args.idle_timeout),
         ..ConnectionLimits::default()
     };
