@@ -62,8 +62,10 @@ pub struct Config {
     pub operator_tokens_file: Option<PathBuf>,
     /// Serve TLS instead of plaintext.
     pub tls: Option<TlsConfig>,
-    /// Connection limits: how many at once, when an idle one is closed.
+    /// gRPC's connection limits: how many at once, when an idle one is closed.
     pub connections: ConnectionLimits,
+    /// Limits on the HTTP listener's connections (the view and /metrics).
+    pub http_connections: http::HttpLimits,
     /// When the patch log is folded into map snapshots.
     pub compaction: Compaction,
     /// When robots' calls are refused because a queue stands (see
@@ -82,6 +84,7 @@ impl Config {
             operator_tokens_file: None,
             tls: None,
             connections: ConnectionLimits::default(),
+            http_connections: http::HttpLimits::default(),
             compaction: Compaction::default(),
             shedding: None,
         }
@@ -220,6 +223,7 @@ pub async fn run_with(
     warn_about_exposure(&auth, address, config.tls.is_some());
     let streams_end = CancellationToken::new();
     // Where gRPC has TLS, so has HTTP: the view's API carries tokens too.
+    let http_listener = http_listener.map(|listener| http::Limited::new(listener, config.http_connections));
     let http_listener = match (http_listener, &config.tls) {
         (Some(listener), Some(tls)) => {
             Some(HttpListener::Tls(http::TlsListener::new(listener, tls, streams_end.clone())?))
@@ -377,7 +381,7 @@ pub async fn run_with(
 
 /// The HTTP listener, plain or behind TLS.
 enum HttpListener {
-    Plain(TcpListener),
+    Plain(http::Limited),
     Tls(http::TlsListener),
 }
 

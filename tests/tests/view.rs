@@ -335,3 +335,44 @@ async fn live_views_beyond_the_limit_are_refused_until_one_closes() {
     assert!(admitted, "a closed view gives its place back");
     exec.stop().await;
 }
+
+/// Whoever reaches the HTTP port cannot hold more of it than its limit:
+/// connections beyond are closed as they arrive, before a byte is read,
+/// and gRPC answers all along; once one held closes, the page is served.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn silent_connections_beyond_the_http_limit_are_closed_and_grpc_answers() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = coordinator::Config::new(dir.path().join("limit.db"));
+    config.http_connections.max_connections = 3;
+    let exec = TestExecutive::start_with_http(config).await;
+    let http = exec.http.unwrap();
+    let mut silent = Vec::new();
+    for _ in 0..3 {
+        silent.push(tokio::net::TcpStream::connect(http).await.unwrap());
+    }
+    for _ in 0..5 {
+        let mut extra = tokio::net::TcpStream::connect(http).await.unwrap();
+        let mut byte = [0u8; 1];
+        let read = tokio::time::timeout(Duration::from_secs(20), extra.read(&mut byte)).await;
+        assert!(matches!(read, Ok(Ok(0)) | Ok(Err(_))), "closed unread: {read:?}");
+    }
+    let mut missions = exec.missions();
+    common::create_mission(&mut missions, 20, 10, "nearest").await;
+    drop(silent.pop());
+    let mut served = false;
+    for _ in 0..200 {
+        let mut stream = tokio::net::TcpStream::connect(http).await.unwrap();
+        stream
+            .write_all(format!("GET / HTTP/1.1\r\nHost: {http}\r\nConnection: close\r\n\r\n").as_bytes())
+            .await
+            .unwrap();
+        let mut answer = Vec::new();
+        let _ = tokio::time::timeout(Duration::from_secs(20), stream.read_to_end(&mut answer)).await;
+        if answer.starts_with(b"HTTP/1.1 200") {
+            served = true;
+            break;
+        }
+    }
+    assert!(served, "a slot given back serves the page");
+    exec.stop().await;
+}

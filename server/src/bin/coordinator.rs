@@ -10,6 +10,7 @@ use tracing_subscriber::EnvFilter;
 use std::time::Duration;
 
 use coordinator::admission::QueueDelay;
+use coordinator::http::HttpLimits;
 use coordinator::{
     Claimant, Compaction, Config, ConnectionLimits, Durability, ExecutiveSettings, Location, ReplicaSettings, TlsConfig,
 };
@@ -82,9 +83,14 @@ struct Args {
     /// of them (mutual TLS).
     #[arg(long, env = "COORDINATOR_TLS_CLIENT_CA", requires = "tls_cert")]
     tls_client_ca: Option<PathBuf>,
-    /// Most connections held at once; more are closed as they arrive.
+    /// Most gRPC connections held at once; more are closed as they arrive.
     #[arg(long, env = "COORDINATOR_MAX_CONNECTIONS", default_value_t = 10_000)]
     max_connections: usize,
+    /// Most connections the --http listener holds at once (more are closed
+    /// as they arrive), each closed after a minute without a byte: whoever
+    /// reaches that port must not be able to take the descriptors gRPC needs.
+    #[arg(long, env = "COORDINATOR_HTTP_MAX_CONNECTIONS", default_value_t = HttpLimits::default().max_connections)]
+    http_max_connections: usize,
     /// Refuse robots' calls (map updates, heartbeats, bids, each kind on its
     /// own) at once with RESOURCE_EXHAUSTED and a retry hint while none has
     /// been answered within this many milliseconds for five times
@@ -254,6 +260,8 @@ async fn main() -> anyhow::Result<()> {
     );
     // 0 would refuse every caller, the health checks included.
     anyhow::ensure!(args.max_connections >= 1, "--max-connections must be at least 1");
+    anyhow::ensure!(args.http_max_connections >= 1, "--http-max-connections must be at least 1");
+    config.http_connections = HttpLimits { max_connections: args.http_max_connections, ..HttpLimits::default() };
     config.connections = ConnectionLimits {
         max_connections: args.max_connections,
         idle_timeout: Duration::from_secs_f64(args.idle_timeout),

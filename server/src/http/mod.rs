@@ -2,9 +2,12 @@
 //! (`GET /metrics`) and the live mission view ([`view`]). Both read through
 //! the executive like any other client. HTTPS ([`tls`]) when gRPC has TLS.
 
+mod limit;
 mod tls;
 mod view;
 
+pub use limit::HttpLimits;
+pub(crate) use limit::Limited;
 pub use tls::HttpsError;
 pub(crate) use tls::TlsListener;
 

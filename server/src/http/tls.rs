@@ -6,7 +6,7 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::TcpStream;
 use tokio_rustls::TlsAcceptor;
 use tokio_rustls::rustls::pki_types::pem::PemObject;
 use tokio_rustls::rustls::pki_types::{CertificateDer, PrivateKeyDer};
@@ -15,6 +15,7 @@ use tokio_rustls::rustls::{RootCertStore, ServerConfig};
 use tokio_rustls::server::TlsStream;
 use tokio_util::sync::CancellationToken;
 
+use super::limit::{Limited, Quiet};
 use crate::TlsConfig;
 
 /// How long a client may take over its TLS handshake.
@@ -28,13 +29,14 @@ pub struct HttpsError(String);
 /// Accepted connections, each past its TLS handshake. Handshakes run on
 /// their own tasks, so a client that stalls in one holds up nobody.
 pub(crate) struct TlsListener {
-    accepted: tokio::sync::mpsc::Receiver<(TlsStream<TcpStream>, SocketAddr)>,
+    accepted: tokio::sync::mpsc::Receiver<(TlsStream<Quiet<TcpStream>>, SocketAddr)>,
     local: SocketAddr,
 }
 
 impl TlsListener {
-    /// Accepts on `listener` until `stop`.
-    pub(crate) fn new(listener: TcpListener, tls: &TlsConfig, stop: CancellationToken) -> Result<Self, HttpsError> {
+    /// Accepts on `listener` until `stop`; a connection holds its slot of
+    /// the listener's limit from before its handshake.
+    pub(crate) fn new(listener: Limited, tls: &TlsConfig, stop: CancellationToken) -> Result<Self, HttpsError> {
         let local = listener.local_addr().map_err(|e| HttpsError(e.to_string()))?;
         let acceptor = TlsAcceptor::from(Arc::new(server_config(tls)?));
         let (sender, accepted) = tokio::sync::mpsc::channel(64);
@@ -42,13 +44,7 @@ impl TlsListener {
             loop {
                 let (stream, peer) = tokio::select! {
                     () = stop.cancelled() => return,
-                    accepted = listener.accept() => match accepted {
-                        Ok(accepted) => accepted,
-                        Err(e) => {
-                            tracing::debug!(error = %e, "HTTPS accept failed");
-                            continue;
-                        }
-                    },
+                    accepted = listener.accept() => accepted,
                 };
                 let (acceptor, sender) = (acceptor.clone(), sender.clone());
                 tokio::spawn(async move {
@@ -67,7 +63,7 @@ impl TlsListener {
 }
 
 impl axum::serve::Listener for TlsListener {
-    type Io = TlsStream<TcpStream>;
+    type Io = TlsStream<Quiet<TcpStream>>;
     type Addr = SocketAddr;
 
     async fn accept(&mut self) -> (Self::Io, Self::Addr) {

@@ -39,6 +39,9 @@ const PAGE: &str = include_str!("view.html");
 /// Least time between two updates of one stream: a person cannot follow
 /// faster, and a busy mission would otherwise send one per map patch.
 const UPDATE_GAP: Duration = Duration::from_millis(250);
+/// Longest a live view goes without a byte: well within
+/// [`super::HttpLimits::idle`]'s default.
+const KEEP_ALIVE: Duration = Duration::from_secs(20);
 
 /// How often the latest tasks and events (read from the store) are sent.
 const HISTORY_GAP: Duration = Duration::from_secs(1);
@@ -132,6 +135,14 @@ async fn follow(
             () = stop.cancelled() => return,
             () = sender.closed() => return,
             moved = changed.changed() => if moved.is_err() { return },
+            () = tokio::time::sleep(KEEP_ALIVE) => {
+                // A comment, which readers skip: a quiet mission's view
+                // outlives the listener's idle time (see `limit`).
+                if sender.send(Bytes::from_static(b": quiet\n\n")).await.is_err() {
+                    return;
+                }
+                continue;
+            }
         }
         tokio::select! {
             () = stop.cancelled() => return,
