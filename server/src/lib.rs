@@ -187,6 +187,10 @@ async fn sweep_until(executive: Arc<Executive>, clock: Clock, stop: Cancellation
 /// Largest request the executive decodes (a map update with big patches).
 pub const MAX_MESSAGE_BYTES: usize = exploration_proto::MAX_MESSAGE_BYTES;
 
+/// Connections the plaintext health listener (`Listeners::health`) holds
+/// at once; more are closed as they arrive.
+pub const HEALTH_CONNECTIONS: usize = 64;
+
 /// Serves the executive on `listener` until `shutdown` resolves, then stops
 /// accepting, ends assignment streams, lets in-flight requests finish and
 /// closes the database.
@@ -283,9 +287,17 @@ pub async fn run_with(
     let health_server = health_listener.map(|listener| {
         tracing::info!(address = ?listener.local_addr().ok(), "serving the gRPC health service alone, in plaintext");
         let stop = streams_end.clone().cancelled_owned();
-        let incoming = tonic::transport::server::TcpIncoming::from(listener);
+        // Probes need a few connections; whoever else reaches this port
+        // must not hold the descriptors gRPC needs (see `http::HttpLimits`).
+        let limits = ConnectionLimits {
+            max_connections: HEALTH_CONNECTIONS,
+            idle_timeout: std::time::Duration::from_secs(60),
+            ..ConnectionLimits::default()
+        };
+        let incoming = connections::Incoming::new(listener, limits);
         tokio::spawn(
             tonic::transport::Server::builder()
+                .layer(connections::ActivityLayer)
                 .add_service(health_service.clone())
                 .serve_with_incoming_shutdown(incoming, stop),
         )
@@ -357,18 +369,10 @@ pub async fn run_with(
         tracing::error!(error = %e, "the patch log compactor failed");
     }
     if let Some(server) = health_server {
-        match server.await {
-            Ok(Err(e)) => tracing::error!(error = %e, "the health listener failed"),
-            Err(e) => tracing::error!(error = %e, "the health listener task failed"),
-            Ok(Ok(())) => {}
-        }
+        drained("health listener", server, grace).await;
     }
     if let Some(server) = http_server {
-        match server.await {
-            Ok(Err(e)) => tracing::error!(error = %e, "the HTTP server failed"),
-            Err(e) => tracing::error!(error = %e, "the HTTP server task failed"),
-            Ok(Ok(())) => {}
-        }
+        drained("HTTP listener", server, grace).await;
     }
     executive.close().await;
     // Everything it wrote is durable: the other replicas may take its missions now.
@@ -377,6 +381,25 @@ pub async fn run_with(
     served?;
     tracing::info!("executive stopped");
     Ok(())
+}
+
+/// Waits for a listener beside gRPC to finish its connections, for at most
+/// `grace`: a peer that never sends a request would otherwise hold the
+/// shutdown, and the store's close, for as long as it stays connected.
+async fn drained<E: std::fmt::Display>(
+    listener: &'static str,
+    mut server: tokio::task::JoinHandle<Result<(), E>>,
+    grace: std::time::Duration,
+) {
+    match tokio::time::timeout(grace, &mut server).await {
+        Ok(Ok(Ok(()))) => {}
+        Ok(Ok(Err(e))) => tracing::error!(listener, error = %e, "the listener failed"),
+        Ok(Err(e)) => tracing::error!(listener, error = %e, "the listener's task failed"),
+        Err(_) => {
+            tracing::warn!(listener, ?grace, "connections still open after the drain grace: closing them");
+            server.abort();
+        }
+    }
 }
 
 /// The HTTP listener, plain or behind TLS.
