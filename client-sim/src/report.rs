@@ -389,7 +389,7 @@ pub fn write_report(experiments: &[(Experiment, std::path::PathBuf)], out: &Path
         names.join(" "),
         configs.join(" ")
     );
-    std::fs::write(out, md).map_err(|source| ExperimentError::Io { path: out.to_owned(), source })
+    std::fs::write(out, md).map_err(|cause| ExperimentError::Io { path: out.to_owned(), cause })
 }
 
 /// Which seeds were run: all the planned ones, or (a run cut for time) the

@@ -40,7 +40,7 @@ pub const RUN_COLUMNS: [&str; 26] = [
 ];
 
 fn csv_error(path: &Path) -> impl Fn(csv::Error) -> ExperimentError + '_ {
-    move |e| ExperimentError::Io { path: path.to_owned(), source: std::io::Error::other(e) }
+    move |e| ExperimentError::Io { path: path.to_owned(), cause: std::io::Error::other(e) }
 }
 
 /// One row of `runs.csv`, by column name.

@@ -20,12 +20,12 @@ use exploration::segment::{DEFAULT_MIN_DROP_M, DEFAULT_MIN_SEGMENT_M2, segment_c
 #[derive(Debug, thiserror::Error)]
 pub enum WorldError {
     /// A file could not be read.
-    #[error("cannot read {path}: {source}")]
+    #[error("cannot read {path}: {cause}")]
     Io {
         /// The file.
         path: PathBuf,
         /// Why.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The YAML is not a map_server description.
     #[error("{path}: {message}")]
@@ -36,12 +36,12 @@ pub enum WorldError {
         message: String,
     },
     /// The image does not decode.
-    #[error("cannot decode image {path}: {source}")]
+    #[error("cannot decode image {path}: {cause}")]
     Image {
         /// The file.
         path: PathBuf,
         /// Why.
-        source: image::ImageError,
+        cause: image::ImageError,
     },
     /// Nothing to explore.
     #[error("{0}")]
@@ -95,7 +95,7 @@ pub struct MapDescription {
 impl MapDescription {
     /// Reads a map_server YAML file.
     pub fn load(path: &Path) -> Result<Self, WorldError> {
-        let text = std::fs::read_to_string(path).map_err(|source| WorldError::Io { path: path.to_owned(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|cause| WorldError::Io { path: path.to_owned(), cause })?;
         let yaml_error = |message: String| WorldError::Yaml { path: path.to_owned(), message };
         let docs = yaml_rust2::YamlLoader::load_from_str(&text).map_err(|e| yaml_error(e.to_string()))?;
         let doc = docs.first().ok_or_else(|| yaml_error("empty document".into()))?;
@@ -174,7 +174,7 @@ impl World {
     pub fn load(yaml: &Path, cell_size: Option<f64>, start: StartChoice, seed: u64) -> Result<Self, WorldError> {
         let description = MapDescription::load(yaml)?;
         let image = image::open(&description.image)
-            .map_err(|source| WorldError::Image { path: description.image.clone(), source })?;
+            .map_err(|cause| WorldError::Image { path: description.image.clone(), cause })?;
         let luma = image.to_luma8();
         let (w, h) = luma.dimensions();
         let free_pixels: Vec<bool> = luma

@@ -112,12 +112,12 @@ pub enum TokensError {
     #[error("the operator token has {0} characters; give at least 16")]
     Short(usize),
     /// The tokens file could not be read.
-    #[error("cannot read the tokens file {path}: {source}")]
+    #[error("cannot read the tokens file {path}: {cause}")]
     Read {
         /// The file.
         path: PathBuf,
         /// Why.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// A line of the tokens file is malformed.
     #[error("tokens file {path}, line {line}: {problem}")]
@@ -197,7 +197,7 @@ struct TokensFile {
 
 impl TokensFile {
     fn load(path: &Path) -> Result<Self, TokensError> {
-        let read = |source| TokensError::Read { path: path.to_owned(), source };
+        let read = |cause| TokensError::Read { path: path.to_owned(), cause };
         let version = file_version(path).map_err(read)?;
         let text = std::fs::read_to_string(path).map_err(read)?;
         Ok(Self { path: path.to_owned(), version: Some(version), holders: parse_tokens(path, &text)? })

@@ -238,12 +238,12 @@ pub struct CheckSpec {
 #[derive(Debug, thiserror::Error)]
 pub enum ExperimentError {
     /// Reading or writing a file.
-    #[error("{path}: {source}")]
+    #[error("{path}: {cause}")]
     Io {
         /// Which file.
         path: PathBuf,
         /// Why.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The configuration is not valid.
     #[error("{path}: {message}")]
@@ -259,7 +259,7 @@ pub enum ExperimentError {
 }
 
 pub(crate) fn io(path: &Path) -> impl Fn(std::io::Error) -> ExperimentError + '_ {
-    move |source| ExperimentError::Io { path: path.to_owned(), source }
+    move |cause| ExperimentError::Io { path: path.to_owned(), cause }
 }
 
 impl Experiment {

@@ -26,7 +26,7 @@ impl StoreLock {
     /// Takes the lock of the database at `database`, or says who holds it.
     pub fn acquire(database: &Path) -> Result<Self, StoreError> {
         let path = lock_path(database);
-        let io = |source| StoreError::LockFile { path: path.clone(), source };
+        let io = |cause| StoreError::LockFile { path: path.clone(), cause };
         let mut file =
             OpenOptions::new().read(true).write(true).create(true).truncate(false).open(&path).map_err(io)?;
         match file.try_lock() {

@@ -137,12 +137,12 @@ pub enum StoreError {
     #[error("{0}")]
     Path(String),
     /// The lock file could not be made or read.
-    #[error("lock file {path}: {source}")]
+    #[error("lock file {path}: {cause}")]
     LockFile {
         /// The lock file.
         path: std::path::PathBuf,
         /// Why.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The store cannot do this; the message says what to use instead.
     #[error("{0}")]

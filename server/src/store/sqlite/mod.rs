@@ -128,7 +128,7 @@ impl Backend for SqliteBackend {
         // while writers go on, and refuses to overwrite an existing file.
         let target = path.to_str().ok_or_else(|| StoreError::LockFile {
             path: path.to_owned(),
-            source: std::io::Error::new(std::io::ErrorKind::InvalidInput, "the path is not UTF-8"),
+            cause: std::io::Error::new(std::io::ErrorKind::InvalidInput, "the path is not UTF-8"),
         })?;
         sqlx::query("VACUUM INTO $1").bind(target).execute(&self.pool).await?;
         Ok(())
