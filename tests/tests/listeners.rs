@@ -29,6 +29,26 @@ async fn closed_unread(address: SocketAddr) -> bool {
     matches!(tokio::time::timeout(Duration::from_secs(20), extra.read(&mut byte)).await, Ok(Ok(0) | Err(_)))
 }
 
+/// The health service's answer at `address` (1: serving).
+async fn health_status(address: SocketAddr) -> Result<i32, Box<dyn std::error::Error>> {
+    use tonic_health::pb::{HealthCheckRequest, health_client::HealthClient};
+    let channel = tonic::transport::Endpoint::from_shared(format!("http://{address}"))?.connect().await?;
+    let answer = HealthClient::new(channel).check(HealthCheckRequest { service: String::new() }).await?;
+    Ok(answer.into_inner().status)
+}
+
+/// Whether a probe at `address` is answered within 200 tries (a slot given
+/// back is seen once the server has read the close).
+async fn answers_a_probe(address: SocketAddr) -> bool {
+    for _ in 0..200 {
+        if health_status(address).await.is_ok() {
+            return true;
+        }
+        tokio::task::yield_now().await;
+    }
+    false
+}
+
 /// Connections beyond the HTTP limit are closed as they arrive, gRPC
 /// answers all along, and once a held one closes the page is served.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -67,8 +87,6 @@ async fn silent_connections_beyond_the_http_limit_are_closed_and_grpc_answers() 
 /// service answers there and on the main port while it is full.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_health_listener_holds_at_most_its_budget() {
-    use tonic_health::pb::{HealthCheckRequest, health_client::HealthClient};
-
     let dir = tempfile::tempdir().unwrap();
     let grpc = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let health = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
@@ -79,33 +97,12 @@ async fn the_health_listener_holds_at_most_its_budget() {
     config.connections.drain_grace = Duration::from_millis(200);
     let grace = config.connections.drain_grace;
     let server = tokio::spawn(coordinator::run_with(listeners, stop.clone().cancelled_owned(), config));
-    let check = |address: SocketAddr| async move {
-        let channel = tonic::transport::Endpoint::from_shared(format!("http://{address}")).unwrap().connect().await?;
-        let answer = HealthClient::new(channel).check(HealthCheckRequest { service: String::new() }).await;
-        Ok::<_, Box<dyn std::error::Error>>(answer?.into_inner().status)
-    };
-    let mut serving = false;
-    for _ in 0..200 {
-        if check(health_address).await.is_ok() {
-            serving = true;
-            break;
-        }
-        tokio::task::yield_now().await;
-    }
-    assert!(serving, "the health listener answers");
+    assert!(answers_a_probe(health_address).await, "the health listener answers");
     let mut held = silent(health_address, coordinator::HEALTH_CONNECTIONS).await;
     assert!(closed_unread(health_address).await, "a connection beyond the budget is closed unread");
-    assert_eq!(check(grpc_address).await.unwrap(), 1, "the main port serves");
+    assert_eq!(health_status(grpc_address).await.unwrap(), 1, "the main port serves");
     drop(held.pop());
-    let mut answered = false;
-    for _ in 0..200 {
-        if check(health_address).await.is_ok() {
-            answered = true;
-            break;
-        }
-        tokio::task::yield_now().await;
-    }
-    assert!(answered, "a slot given back answers a probe");
+    assert!(answers_a_probe(health_address).await, "a slot given back answers a probe");
     // Silent peers still connected do not hold the shutdown past the drain grace.
     let stopping = std::time::Instant::now();
     stop.cancel();
