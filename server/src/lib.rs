@@ -396,7 +396,8 @@ async fn drained<E: std::fmt::Display>(
         Ok(Ok(Err(e))) => tracing::error!(listener, error = %e, "the listener failed"),
         Ok(Err(e)) => tracing::error!(listener, error = %e, "the listener's task failed"),
         Err(_) => {
-            tracing::warn!(listener, ?grace, "connections still open after the drain grace: closing them");
+            // Its connections' own tasks end with the runtime.
+            tracing::warn!(listener, ?grace, "connections still open after the drain grace: not waiting for them");
             server.abort();
         }
     }
