@@ -52,27 +52,21 @@ pub enum WorldError {
 }
 
 /// Refuses a world of `width_m` × `height_m` at `cell` metres that is not a
-/// grid an executive takes (coordinator::validate's limits), before its
-/// cells are allocated: a mistyped `--cell-size 0` or `--size 1e9x1e9`
-/// would otherwise ask for more memory than there is.
+/// grid an executive takes, by the executive's own check of a mission's
+/// grid (`coordinator::validate::frame`), before its cells are allocated: a
+/// mistyped `--cell-size 0` or `--size 1e9x1e9` would otherwise ask for more
+/// memory than there is.
 pub fn check_grid(name: &str, width_m: f64, height_m: f64, cell: f64) -> Result<(), WorldError> {
-    use coordinator::validate::{MAX_GRID_CELLS, MAX_GRID_SIDE};
     let refuse = |why: String| Err(WorldError::Size(format!("{name}: {why}")));
-    if !(cell.is_finite() && cell > 0.0) {
-        return refuse(format!("the cell size must be a positive number of metres, not {cell}"));
-    }
     if !(width_m.is_finite() && width_m > 0.0 && height_m.is_finite() && height_m > 0.0) {
         return refuse(format!("the size must be positive metres, not {width_m} × {height_m}"));
     }
-    let (columns, rows) = ((width_m / cell).ceil(), (height_m / cell).ceil());
-    let side = f64::from(MAX_GRID_SIDE);
-    if columns > side || rows > side || columns * rows > MAX_GRID_CELLS as f64 {
-        return refuse(format!(
-            "{width_m:.2} × {height_m:.2} m in cells of {cell} m is {columns} × {rows} cells; an executive takes at \
-             most {MAX_GRID_SIDE} a side and {MAX_GRID_CELLS} in all (give larger cells)"
-        ));
+    // `as` saturates what no i64 holds; the check then refuses it.
+    let cells = |metres: f64| (metres / cell).ceil() as i64;
+    match coordinator::validate::frame(cell, Point2::origin(), cells(width_m), cells(height_m), "") {
+        Ok(_) => Ok(()),
+        Err(e) => refuse(format!("{e} (a world of {width_m:.2} × {height_m:.2} m in cells of {cell} m)")),
     }
-    Ok(())
 }
 
 /// What a map_server YAML says.
