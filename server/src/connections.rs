@@ -1,14 +1,20 @@
 //! Connections: how many are held at once, and closing the ones left idle.
+//! One mechanism for every listener: gRPC, the plaintext health listener
+//! and the HTTP listener (the view and /metrics).
 //!
 //! [`Incoming`] accepts TCP connections up to a limit (one beyond it is
-//! closed at once, before any byte is read) and wraps each in a [`Tracked`]
-//! stream. [`ActivityLayer`] counts each connection's open requests,
-//! streams included, until their response ends. A connection with no open
-//! request for the idle time is closed by its own reader, which reports the
-//! end of the stream to the HTTP/2 server; clients reconnect when they next
-//! call, as they do after any lost connection.
+//! closed at once, before any byte is read or a TLS handshake begins) and
+//! wraps each in a [`Tracked`] stream. [`ActivityLayer`] counts each
+//! connection's open requests, streams included, until their response ends.
+//! A connection with no open request for the idle time (a peer that sends
+//! nothing, or half a request) is closed by its own reader, which reports
+//! the end of the stream to the HTTP server; clients reconnect when they
+//! next call, as they do after any lost connection. A peer that takes
+//! nothing written to it for the idle time (it stopped reading, and would
+//! hold its response and its slot for ever) gets a write error instead.
 
 use std::io;
+use std::net::SocketAddr;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
@@ -26,7 +32,8 @@ use tonic::transport::server::{Connected, TcpConnectInfo};
 pub struct ConnectionLimits {
     /// Most connections at once; more are closed as they arrive.
     pub max_connections: usize,
-    /// A connection with no open request for this long is closed.
+    /// A connection with no open request for this long is closed, as is one
+    /// whose peer takes no byte written to it for this long.
     pub idle_timeout: Duration,
     /// At shutdown, how long open connections may take to finish before
     /// they are dropped (a peer that never completes its handshake would
@@ -35,8 +42,21 @@ pub struct ConnectionLimits {
 }
 
 impl Default for ConnectionLimits {
+    /// gRPC's: a thousand robots with room to spare, and streams that may
+    /// be quiet for minutes.
     fn default() -> Self {
         Self { max_connections: 10_000, idle_timeout: Duration::from_secs(300), drain_grace: Duration::from_secs(10) }
+    }
+}
+
+impl ConnectionLimits {
+    /// A listener beside gRPC that anyone reaching its port may open before
+    /// any token is checked: at most `max_connections`, and a minute of
+    /// silence, so that silent peers cannot take the descriptors the robots'
+    /// connections need. (The view's live streams are open requests, so
+    /// they are not idle.)
+    pub fn side_listener(max_connections: usize) -> Self {
+        Self { max_connections, idle_timeout: Duration::from_secs(60), ..Self::default() }
     }
 }
 
@@ -86,15 +106,36 @@ impl Drop for Slot {
 
 /// An accepted connection that ends itself after the idle time.
 #[derive(Debug)]
-pub struct Tracked {
-    stream: TcpStream,
+pub struct Tracked<S = TcpStream> {
+    stream: S,
+    /// The peer's address, for the log and for axum.
+    peer: SocketAddr,
     activity: Arc<Activity>,
     idle_timeout: Duration,
     timer: Pin<Box<Sleep>>,
+    /// Armed while a write waits for the peer to take bytes.
+    write_stall: Option<Pin<Box<Sleep>>>,
     _slot: Slot,
 }
 
-impl Tracked {
+impl<S> Tracked<S> {
+    fn new(stream: S, peer: SocketAddr, idle_timeout: Duration, slot: Slot) -> Self {
+        let activity = Arc::new(Activity {
+            open_requests: AtomicUsize::new(0),
+            idle_since: Mutex::new(Instant::now()),
+            reader: AtomicWaker::new(),
+        });
+        Self {
+            stream,
+            peer,
+            activity,
+            idle_timeout,
+            timer: Box::pin(tokio::time::sleep(idle_timeout)),
+            write_stall: None,
+            _slot: slot,
+        }
+    }
+
     /// Whether the connection has had no open request for the idle time;
     /// arms the timer (and the reader's waker) otherwise.
     fn idle(&mut self, cx: &mut Context<'_>) -> bool {
@@ -109,6 +150,24 @@ impl Tracked {
         self.timer.as_mut().reset(deadline);
         self.timer.as_mut().poll(cx).is_ready()
     }
+
+    /// After a write (or flush) of the stream: one that has waited for the
+    /// peer for the idle time fails; one that moved on disarms the timer.
+    fn watch_write<T>(&mut self, cx: &mut Context<'_>, polled: Poll<io::Result<T>>) -> Poll<io::Result<T>> {
+        if polled.is_ready() {
+            self.write_stall = None;
+            return polled;
+        }
+        let idle_timeout = self.idle_timeout;
+        let stall = self.write_stall.get_or_insert_with(|| Box::pin(tokio::time::sleep(idle_timeout)));
+        match stall.as_mut().poll(cx) {
+            Poll::Ready(()) => {
+                tracing::debug!(peer = %self.peer, "closing a connection whose peer stopped reading");
+                Poll::Ready(Err(io::Error::new(io::ErrorKind::TimedOut, "the peer took nothing written to it")))
+            }
+            Poll::Pending => Poll::Pending,
+        }
+    }
 }
 
 impl Connected for Tracked {
@@ -119,12 +178,12 @@ impl Connected for Tracked {
     }
 }
 
-impl AsyncRead for Tracked {
+impl<S: AsyncRead + Unpin> AsyncRead for Tracked<S> {
     fn poll_read(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
         match Pin::new(&mut self.stream).poll_read(cx, buf) {
             Poll::Pending if self.idle(cx) => {
-                tracing::debug!(peer = ?self.stream.peer_addr().ok(), "closing an idle connection");
-                // End of stream: the HTTP/2 server closes the connection.
+                tracing::debug!(peer = %self.peer, "closing an idle connection");
+                // End of stream: the HTTP server closes the connection.
                 Poll::Ready(Ok(()))
             }
             other => other,
@@ -132,13 +191,15 @@ impl AsyncRead for Tracked {
     }
 }
 
-impl AsyncWrite for Tracked {
+impl<S: AsyncWrite + Unpin> AsyncWrite for Tracked<S> {
     fn poll_write(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<io::Result<usize>> {
-        Pin::new(&mut self.stream).poll_write(cx, buf)
+        let polled = Pin::new(&mut self.stream).poll_write(cx, buf);
+        self.watch_write(cx, polled)
     }
 
     fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
-        Pin::new(&mut self.stream).poll_flush(cx)
+        let polled = Pin::new(&mut self.stream).poll_flush(cx);
+        self.watch_write(cx, polled)
     }
 
     fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
@@ -150,7 +211,8 @@ impl AsyncWrite for Tracked {
         cx: &mut Context<'_>,
         bufs: &[io::IoSlice<'_>],
     ) -> Poll<io::Result<usize>> {
-        Pin::new(&mut self.stream).poll_write_vectored(cx, bufs)
+        let polled = Pin::new(&mut self.stream).poll_write_vectored(cx, bufs);
+        self.watch_write(cx, polled)
     }
 
     fn is_write_vectored(&self) -> bool {
@@ -161,6 +223,8 @@ impl AsyncWrite for Tracked {
 /// Accepted connections, up to the limit.
 #[derive(Debug)]
 pub struct Incoming {
+    /// Which listener, for the log.
+    name: &'static str,
     listener: TcpListener,
     limits: ConnectionLimits,
     open: Arc<AtomicUsize>,
@@ -169,15 +233,24 @@ pub struct Incoming {
 }
 
 impl Incoming {
-    /// Accepts on `listener` within `limits`.
-    pub fn new(listener: TcpListener, limits: ConnectionLimits) -> Self {
-        Self { listener, limits, open: Arc::new(AtomicUsize::new(0)), refused_logged: None }
+    /// Accepts on `listener` (called `name` in the log) within `limits`.
+    pub fn new(name: &'static str, listener: TcpListener, limits: ConnectionLimits) -> Self {
+        Self { name, listener, limits, open: Arc::new(AtomicUsize::new(0)), refused_logged: None }
     }
 
-    fn accept(&mut self, stream: TcpStream) -> Option<Tracked> {
+    /// The address it listens on.
+    pub fn local_addr(&self) -> io::Result<SocketAddr> {
+        self.listener.local_addr()
+    }
+
+    fn admit(&mut self, stream: TcpStream, peer: SocketAddr) -> Option<Tracked> {
         if self.open.load(Ordering::Acquire) >= self.limits.max_connections {
             if self.refused_logged.is_none_or(|at| at.elapsed() >= Duration::from_secs(1)) {
-                tracing::warn!(limit = self.limits.max_connections, "connection limit reached: refusing connections");
+                tracing::warn!(
+                    listener = self.name,
+                    limit = self.limits.max_connections,
+                    "connection limit reached: refusing connections"
+                );
                 self.refused_logged = Some(Instant::now());
             }
             return None;
@@ -188,18 +261,7 @@ impl Incoming {
             socket2::TcpKeepalive::new().with_time(Duration::from_secs(30)).with_interval(Duration::from_secs(10));
         let _ = socket2::SockRef::from(&stream).set_tcp_keepalive(&keepalive);
         self.open.fetch_add(1, Ordering::AcqRel);
-        let activity = Arc::new(Activity {
-            open_requests: AtomicUsize::new(0),
-            idle_since: Mutex::new(Instant::now()),
-            reader: AtomicWaker::new(),
-        });
-        Some(Tracked {
-            stream,
-            activity,
-            idle_timeout: self.limits.idle_timeout,
-            timer: Box::pin(tokio::time::sleep(self.limits.idle_timeout)),
-            _slot: Slot(Arc::clone(&self.open)),
-        })
+        Some(Tracked::new(stream, peer, self.limits.idle_timeout, Slot(Arc::clone(&self.open))))
     }
 }
 
@@ -209,8 +271,8 @@ impl futures::Stream for Incoming {
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
         loop {
             match self.listener.poll_accept(cx) {
-                Poll::Ready(Ok((stream, _))) => {
-                    if let Some(tracked) = self.accept(stream) {
+                Poll::Ready(Ok((stream, peer))) => {
+                    if let Some(tracked) = self.admit(stream, peer) {
                         return Poll::Ready(Some(Ok(tracked)));
                     }
                 }
@@ -220,6 +282,39 @@ impl futures::Stream for Incoming {
                 Poll::Pending => return Poll::Pending,
             }
         }
+    }
+}
+
+/// The HTTP listener's way in (axum's): accept errors (descriptors run out,
+/// a peer gone before it was accepted) are waited out.
+impl axum::serve::Listener for Incoming {
+    type Io = Tracked;
+    type Addr = SocketAddr;
+
+    async fn accept(&mut self) -> (Tracked, SocketAddr) {
+        loop {
+            match futures::StreamExt::next(self).await {
+                Some(Ok(tracked)) => {
+                    let peer = tracked.peer;
+                    return (tracked, peer);
+                }
+                Some(Err(e)) => {
+                    tracing::debug!(listener = self.name, error = %e, "accept failed");
+                    tokio::time::sleep(Duration::from_millis(50)).await;
+                }
+                None => return std::future::pending().await,
+            }
+        }
+    }
+
+    fn local_addr(&self) -> io::Result<SocketAddr> {
+        Incoming::local_addr(self)
+    }
+}
+
+impl axum::extract::connect_info::Connected<axum::serve::IncomingStream<'_, Incoming>> for ConnectionInfo {
+    fn connect_info(stream: axum::serve::IncomingStream<'_, Incoming>) -> Self {
+        stream.io().connect_info()
     }
 }
 
@@ -242,12 +337,14 @@ pub struct ActivityService<S> {
     inner: S,
 }
 
-/// The connection's activity, from the request's extensions (plain or TLS).
+/// The connection's activity, from the request's extensions: tonic's, plain
+/// or TLS, or axum's.
 fn activity_of<B>(request: &http::Request<B>) -> Option<Arc<Activity>> {
     let extensions = request.extensions();
     extensions
         .get::<ConnectionInfo>()
         .or_else(|| extensions.get::<tonic::transport::server::TlsConnectInfo<ConnectionInfo>>().map(|t| t.get_ref()))
+        .or_else(|| extensions.get::<axum::extract::ConnectInfo<ConnectionInfo>>().map(|c| &c.0))
         .map(|info| Arc::clone(&info.activity))
 }
 
@@ -319,5 +416,77 @@ impl<B: http_body::Body> http_body::Body for Counted<B> {
 
     fn size_hint(&self) -> http_body::SizeHint {
         self.body.size_hint()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
+
+    fn tracked(stream: DuplexStream, idle_timeout: Duration) -> Tracked<DuplexStream> {
+        let peer = SocketAddr::from(([127, 0, 0, 1], 9));
+        Tracked::new(stream, peer, idle_timeout, Slot(Arc::new(AtomicUsize::new(1))))
+    }
+
+    /// No open request for the idle time ends the connection (its reader
+    /// sees the end); an open request, however long, keeps it, and the idle
+    /// time starts again when the request ends.
+    #[tokio::test(start_paused = true)]
+    async fn a_connection_without_an_open_request_for_the_idle_time_is_closed() {
+        let (server, _peer) = tokio::io::duplex(64);
+        let mut server = tracked(server, Duration::from_secs(60));
+        let activity = Arc::clone(&server.activity);
+        let start = Instant::now();
+        let request = tokio::spawn(async move {
+            tokio::time::sleep(Duration::from_secs(30)).await;
+            let open = OpenRequest::new(activity);
+            tokio::time::sleep(Duration::from_secs(600)).await;
+            drop(open);
+        });
+        let mut byte = [0u8; 1];
+        let read = tokio::time::timeout(Duration::from_secs(3_600), server.read(&mut byte)).await;
+        assert_eq!(read.expect("closed within the hour").unwrap(), 0, "closed");
+        assert_eq!(start.elapsed(), Duration::from_secs(30 + 600 + 60), "a full idle time after the request ended");
+        request.await.unwrap();
+    }
+
+    /// A peer that takes nothing written to it for the idle time gets a
+    /// write error; one that reads in time starts the time again.
+    #[tokio::test(start_paused = true)]
+    async fn a_peer_that_stops_reading_is_cut_off_after_the_idle_time() {
+        let (server, mut peer) = tokio::io::duplex(4);
+        let mut server = tracked(server, Duration::from_secs(60));
+        let start = Instant::now();
+        let reader = tokio::spawn(async move {
+            tokio::time::sleep(Duration::from_secs(59)).await;
+            let mut taken = [0u8; 4];
+            peer.read_exact(&mut taken).await.unwrap();
+            peer // held open, never read again
+        });
+        let written = tokio::time::timeout(Duration::from_secs(3_600), server.write_all(b"12345678_and_more")).await;
+        let error = written.expect("cut off within the hour").unwrap_err();
+        assert_eq!(error.kind(), io::ErrorKind::TimedOut);
+        assert_eq!(start.elapsed(), Duration::from_secs(59 + 60), "a full idle time after the peer last read");
+        drop(reader.await.unwrap());
+    }
+
+    /// Beyond the limit a connection is closed unread; a slot comes back
+    /// when a held connection ends.
+    #[tokio::test]
+    async fn connections_beyond_the_limit_are_closed_as_they_arrive() {
+        use axum::serve::Listener;
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let address = listener.local_addr().unwrap();
+        let mut incoming = Incoming::new("test", listener, ConnectionLimits::side_listener(2));
+        let (_a, _b) = (TcpStream::connect(address).await.unwrap(), TcpStream::connect(address).await.unwrap());
+        let held = [incoming.accept().await.0, incoming.accept().await.0];
+        let mut third = TcpStream::connect(address).await.unwrap();
+        let next = tokio::spawn(async move { incoming.accept().await.1 });
+        let mut byte = [0u8; 1];
+        assert_eq!(third.read(&mut byte).await.unwrap(), 0, "closed at once");
+        drop(held);
+        let fourth = TcpStream::connect(address).await.unwrap();
+        assert_eq!(next.await.unwrap(), fourth.local_addr().unwrap(), "a slot came back");
     }
 }

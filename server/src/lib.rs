@@ -65,7 +65,7 @@ pub struct Config {
     /// gRPC's connection limits: how many at once, when an idle one is closed.
     pub connections: ConnectionLimits,
     /// Limits on the HTTP listener's connections (the view and /metrics).
-    pub http_connections: http::HttpLimits,
+    pub http_connections: ConnectionLimits,
     /// When the patch log is folded into map snapshots.
     pub compaction: Compaction,
     /// When robots' calls are refused because a queue stands (see
@@ -84,7 +84,7 @@ impl Config {
             operator_tokens_file: None,
             tls: None,
             connections: ConnectionLimits::default(),
-            http_connections: http::HttpLimits::default(),
+            http_connections: ConnectionLimits::side_listener(HTTP_CONNECTIONS),
             compaction: Compaction::default(),
             shedding: None,
         }
@@ -191,6 +191,11 @@ pub const MAX_MESSAGE_BYTES: usize = exploration_proto::MAX_MESSAGE_BYTES;
 /// at once; more are closed as they arrive.
 pub const HEALTH_CONNECTIONS: usize = 64;
 
+/// Connections the HTTP listener holds at once by default: operators'
+/// browsers and a Prometheus scraper need a few; the rest of the process's
+/// descriptors are gRPC's (whose own limit is separate).
+pub const HTTP_CONNECTIONS: usize = 1_024;
+
 /// Serves the executive on `listener` until `shutdown` resolves, then stops
 /// accepting, ends assignment streams, lets in-flight requests finish and
 /// closes the database.
@@ -227,7 +232,9 @@ pub async fn run_with(
     warn_about_exposure(&auth, address, config.tls.is_some());
     let streams_end = CancellationToken::new();
     // Where gRPC has TLS, so has HTTP: the view's API carries tokens too.
-    let http_listener = http_listener.map(|listener| http::Limited::new(listener, config.http_connections));
+    let http_grace = config.http_connections.drain_grace;
+    let http_listener =
+        http_listener.map(|listener| connections::Incoming::new("HTTP", listener, config.http_connections.clone()));
     let http_listener = match (http_listener, &config.tls) {
         (Some(listener), Some(tls)) => {
             Some(HttpListener::Tls(http::TlsListener::new(listener, tls, streams_end.clone())?))
@@ -266,6 +273,8 @@ pub async fn run_with(
     let http_server = http_listener.map(|listener| {
         let stop = streams_end.clone().cancelled_owned();
         let app = http::router(Arc::clone(&executive), auth.clone(), streams_end.clone());
+        // The connection's info carries its activity to `ActivityLayer`.
+        let app = app.into_make_service_with_connect_info::<connections::ConnectionInfo>();
         match listener {
             HttpListener::Plain(listener) => {
                 tracing::info!(address = ?listener.local_addr().ok(), "HTTP serving the mission view (/) and /metrics");
@@ -288,13 +297,12 @@ pub async fn run_with(
         tracing::info!(address = ?listener.local_addr().ok(), "serving the gRPC health service alone, in plaintext");
         let stop = streams_end.clone().cancelled_owned();
         // Probes need a few connections; whoever else reaches this port
-        // must not hold the descriptors gRPC needs (see `http::HttpLimits`).
+        // must not hold the descriptors gRPC needs.
         let limits = ConnectionLimits {
-            max_connections: HEALTH_CONNECTIONS,
-            idle_timeout: std::time::Duration::from_secs(60),
-            ..ConnectionLimits::default()
+            drain_grace: config.connections.drain_grace,
+            ..ConnectionLimits::side_listener(HEALTH_CONNECTIONS)
         };
-        let incoming = connections::Incoming::new(listener, limits);
+        let incoming = connections::Incoming::new("health", listener, limits);
         tokio::spawn(
             tonic::transport::Server::builder()
                 .layer(connections::ActivityLayer)
@@ -312,7 +320,7 @@ pub async fn run_with(
         .build_v1alpha()?;
 
     tracing::info!(?address, db = %config.db, tls = config.tls.is_some(), "executive serving");
-    let incoming = connections::Incoming::new(listener, config.connections.clone());
+    let incoming = connections::Incoming::new("gRPC", listener, config.connections.clone());
     let drain = {
         let health = health.clone();
         let streams_end = streams_end.clone();
@@ -372,7 +380,7 @@ pub async fn run_with(
         drained("health listener", server, grace).await;
     }
     if let Some(server) = http_server {
-        drained("HTTP listener", server, grace).await;
+        drained("HTTP listener", server, http_grace).await;
     }
     executive.close().await;
     // Everything it wrote is durable: the other replicas may take its missions now.
@@ -405,7 +413,7 @@ async fn drained<E: std::fmt::Display>(
 
 /// The HTTP listener, plain or behind TLS.
 enum HttpListener {
-    Plain(http::Limited),
+    Plain(connections::Incoming),
     Tls(http::TlsListener),
 }
 

@@ -22,11 +22,15 @@ async fn silent(address: SocketAddr, count: usize) -> Vec<TcpStream> {
     held
 }
 
-/// A connection to `address` is closed before it sends a byte.
-async fn closed_unread(address: SocketAddr) -> bool {
-    let mut extra = TcpStream::connect(address).await.unwrap();
+/// A new connection to `address` is closed before it sends a byte.
+async fn refused(address: SocketAddr) -> bool {
+    closed_unread(&mut TcpStream::connect(address).await.unwrap()).await
+}
+
+/// The server closes `stream` (within 20 s) without answering.
+async fn closed_unread(stream: &mut TcpStream) -> bool {
     let mut byte = [0u8; 1];
-    matches!(tokio::time::timeout(Duration::from_secs(20), extra.read(&mut byte)).await, Ok(Ok(0) | Err(_)))
+    matches!(tokio::time::timeout(Duration::from_secs(20), stream.read(&mut byte)).await, Ok(Ok(0) | Err(_)))
 }
 
 /// The health service's answer at `address` (1: serving).
@@ -60,7 +64,7 @@ async fn silent_connections_beyond_the_http_limit_are_closed_and_grpc_answers() 
     let http = exec.http.unwrap();
     let mut held = silent(http, 3).await;
     for _ in 0..5 {
-        assert!(closed_unread(http).await, "a connection beyond the limit is closed unread");
+        assert!(refused(http).await, "a connection beyond the limit is closed unread");
     }
     let mut missions = exec.missions();
     common::create_mission(&mut missions, 20, 10, "nearest").await;
@@ -83,6 +87,49 @@ async fn silent_connections_beyond_the_http_limit_are_closed_and_grpc_answers() 
     exec.stop().await;
 }
 
+/// Reads from `stream` until `text` has come `times` times in all; false if
+/// the stream ends (or stalls for 20 s) first.
+async fn until_seen(stream: &mut TcpStream, seen: &mut String, text: &str, times: usize) -> bool {
+    let mut chunk = [0u8; 4096];
+    while seen.matches(text).count() < times {
+        match tokio::time::timeout(Duration::from_secs(20), stream.read(&mut chunk)).await {
+            Ok(Ok(n)) if n > 0 => seen.push_str(&String::from_utf8_lossy(&chunk[..n])),
+            _ => return false,
+        }
+    }
+    true
+}
+
+/// On the HTTP listener, a connection with no request open for the idle
+/// time is closed (half a request is none), while a live view, a request
+/// open for as long as it is watched, outlives it however quiet its mission.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_quiet_live_view_outlives_the_http_idle_time_and_a_half_request_does_not() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = coordinator::Config::new(dir.path().join("idle.db"));
+    config.http_connections.idle_timeout = Duration::from_millis(300);
+    let exec = TestExecutive::start_with_http(config).await;
+    let http = exec.http.unwrap();
+    let (mut missions, mut fleet) = (exec.missions(), exec.fleet());
+    let mission = common::create_mission(&mut missions, 20, 10, "nearest").await;
+    let robot = common::register(&mut fleet, mission.id, "scout", 0.5, 0.5).await;
+
+    let mut view = TcpStream::connect(http).await.unwrap();
+    let request = format!("GET /api/missions/{}/live HTTP/1.1\r\nHost: {http}\r\n\r\n", mission.id);
+    view.write_all(request.as_bytes()).await.unwrap();
+    let mut seen = String::new();
+    assert!(until_seen(&mut view, &mut seen, "data: ", 1).await, "the view's first frame");
+
+    let mut half = TcpStream::connect(http).await.unwrap();
+    half.write_all(b"GET / HTT").await.unwrap();
+    assert!(closed_unread(&mut half).await, "half a request is closed after the idle time");
+
+    // The view has now been quiet for longer than the idle time.
+    fleet.update_map(common::update(robot.id, 1, 0.5, 0.5, vec![common::patch(0, 0, 5, 5, 0.1)])).await.unwrap();
+    assert!(until_seen(&mut view, &mut seen, "data: ", 2).await, "the view is still open: {seen}");
+    exec.stop().await;
+}
+
 /// The plaintext health listener holds at most its budget, and the health
 /// service answers there and on the main port while it is full.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -99,7 +146,7 @@ async fn the_health_listener_holds_at_most_its_budget() {
     let server = tokio::spawn(coordinator::run_with(listeners, stop.clone().cancelled_owned(), config));
     assert!(answers_a_probe(health_address).await, "the health listener answers");
     let mut held = silent(health_address, coordinator::HEALTH_CONNECTIONS).await;
-    assert!(closed_unread(health_address).await, "a connection beyond the budget is closed unread");
+    assert!(refused(health_address).await, "a connection beyond the budget is closed unread");
     assert_eq!(health_status(grpc_address).await.unwrap(), 1, "the main port serves");
     drop(held.pop());
     assert!(answers_a_probe(health_address).await, "a slot given back answers a probe");

@@ -10,7 +10,6 @@ use tracing_subscriber::EnvFilter;
 use std::time::Duration;
 
 use coordinator::admission::QueueDelay;
-use coordinator::http::HttpLimits;
 use coordinator::{
     Claimant, Compaction, Config, ConnectionLimits, Durability, ExecutiveSettings, Location, ReplicaSettings, TlsConfig,
 };
@@ -87,9 +86,10 @@ struct Args {
     #[arg(long, env = "COORDINATOR_MAX_CONNECTIONS", default_value_t = 10_000)]
     max_connections: usize,
     /// Most connections the --http listener holds at once (more are closed
-    /// as they arrive), each closed after a minute without a byte: whoever
-    /// reaches that port must not be able to take the descriptors gRPC needs.
-    #[arg(long, env = "COORDINATOR_HTTP_MAX_CONNECTIONS", default_value_t = HttpLimits::default().max_connections)]
+    /// as they arrive), each closed after a minute with no request open (a
+    /// live view is one) or with its peer taking nothing: whoever reaches
+    /// that port must not be able to take the descriptors gRPC needs.
+    #[arg(long, env = "COORDINATOR_HTTP_MAX_CONNECTIONS", default_value_t = coordinator::HTTP_CONNECTIONS)]
     http_max_connections: usize,
     /// Refuse robots' calls (map updates, heartbeats, bids, each kind on its
     /// own) at once with RESOURCE_EXHAUSTED and a retry hint while none has
@@ -102,7 +102,8 @@ struct Args {
     /// See --shed-target-ms.
     #[arg(long, env = "COORDINATOR_SHED_INTERVAL_MS", default_value_t = 100)]
     shed_interval_ms: u64,
-    /// Seconds after which a connection with no open call is closed.
+    /// Seconds after which a connection with no open call is closed, as is
+    /// one whose peer takes nothing written to it for that long.
     #[arg(long, env = "COORDINATOR_IDLE_TIMEOUT", default_value_t = 300.0)]
     idle_timeout: f64,
     /// Serve HTTP at this address: the live mission view (GET /) and
@@ -261,7 +262,7 @@ async fn main() -> anyhow::Result<()> {
     // 0 would refuse every caller, the health checks included.
     anyhow::ensure!(args.max_connections >= 1, "--max-connections must be at least 1");
     anyhow::ensure!(args.http_max_connections >= 1, "--http-max-connections must be at least 1");
-    config.http_connections = HttpLimits { max_connections: args.http_max_connections, ..HttpLimits::default() };
+    config.http_connections = ConnectionLimits::side_listener(args.http_max_connections);
     config.connections = ConnectionLimits {
         max_connections: args.max_connections,
         idle_timeout: Duration::from_secs_f64(args.idle_timeout),

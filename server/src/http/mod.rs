@@ -2,12 +2,9 @@
 //! (`GET /metrics`) and the live mission view ([`view`]). Both read through
 //! the executive like any other client. HTTPS ([`tls`]) when gRPC has TLS.
 
-mod limit;
 mod tls;
 mod view;
 
-pub use limit::HttpLimits;
-pub(crate) use limit::Limited;
 pub use tls::HttpsError;
 pub(crate) use tls::TlsListener;
 
@@ -46,6 +43,8 @@ pub fn router(executive: Arc<Executive>, auth: Authenticator, stop: Cancellation
         .route("/api/missions", get(view::missions))
         .route("/api/missions/{id}/live", get(view::live))
         .with_state(shared)
+        // A live view is an open request: its connection is not idle.
+        .layer(crate::connections::ActivityLayer)
 }
 
 async fn metrics(State(shared): State<Shared>) -> impl IntoResponse {

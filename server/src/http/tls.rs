@@ -6,7 +6,6 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::net::TcpStream;
 use tokio_rustls::TlsAcceptor;
 use tokio_rustls::rustls::pki_types::pem::PemObject;
 use tokio_rustls::rustls::pki_types::{CertificateDer, PrivateKeyDer};
@@ -15,8 +14,8 @@ use tokio_rustls::rustls::{RootCertStore, ServerConfig};
 use tokio_rustls::server::TlsStream;
 use tokio_util::sync::CancellationToken;
 
-use super::limit::{Limited, Quiet};
 use crate::TlsConfig;
+use crate::connections::{ConnectionInfo, Incoming, Tracked};
 
 /// How long a client may take over its TLS handshake.
 const HANDSHAKE: Duration = Duration::from_secs(10);
@@ -29,14 +28,14 @@ pub struct HttpsError(String);
 /// Accepted connections, each past its TLS handshake. Handshakes run on
 /// their own tasks, so a client that stalls in one holds up nobody.
 pub(crate) struct TlsListener {
-    accepted: tokio::sync::mpsc::Receiver<(TlsStream<Quiet<TcpStream>>, SocketAddr)>,
+    accepted: tokio::sync::mpsc::Receiver<(TlsStream<Tracked>, SocketAddr)>,
     local: SocketAddr,
 }
 
 impl TlsListener {
     /// Accepts on `listener` until `stop`; a connection holds its slot of
     /// the listener's limit from before its handshake.
-    pub(crate) fn new(listener: Limited, tls: &TlsConfig, stop: CancellationToken) -> Result<Self, HttpsError> {
+    pub(crate) fn new(mut listener: Incoming, tls: &TlsConfig, stop: CancellationToken) -> Result<Self, HttpsError> {
         let local = listener.local_addr().map_err(|e| HttpsError(e.to_string()))?;
         let acceptor = TlsAcceptor::from(Arc::new(server_config(tls)?));
         let (sender, accepted) = tokio::sync::mpsc::channel(64);
@@ -44,7 +43,7 @@ impl TlsListener {
             loop {
                 let (stream, peer) = tokio::select! {
                     () = stop.cancelled() => return,
-                    accepted = listener.accept() => accepted,
+                    accepted = axum::serve::Listener::accept(&mut listener) => accepted,
                 };
                 let (acceptor, sender) = (acceptor.clone(), sender.clone());
                 tokio::spawn(async move {
@@ -63,7 +62,7 @@ impl TlsListener {
 }
 
 impl axum::serve::Listener for TlsListener {
-    type Io = TlsStream<Quiet<TcpStream>>;
+    type Io = TlsStream<Tracked>;
     type Addr = SocketAddr;
 
     async fn accept(&mut self) -> (Self::Io, Self::Addr) {
@@ -76,6 +75,12 @@ impl axum::serve::Listener for TlsListener {
 
     fn local_addr(&self) -> std::io::Result<Self::Addr> {
         Ok(self.local)
+    }
+}
+
+impl axum::extract::connect_info::Connected<axum::serve::IncomingStream<'_, TlsListener>> for ConnectionInfo {
+    fn connect_info(stream: axum::serve::IncomingStream<'_, TlsListener>) -> Self {
+        tonic::transport::server::Connected::connect_info(stream.io().get_ref().0)
     }
 }
 

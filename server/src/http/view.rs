@@ -39,8 +39,9 @@ const PAGE: &str = include_str!("view.html");
 /// Least time between two updates of one stream: a person cannot follow
 /// faster, and a busy mission would otherwise send one per map patch.
 const UPDATE_GAP: Duration = Duration::from_millis(250);
-/// Longest a live view goes without a byte: well within
-/// [`super::HttpLimits::idle`]'s default.
+/// Longest a live view goes without a byte: within the minute after which
+/// proxies commonly close a silent response (nginx's `proxy_read_timeout`),
+/// and often enough that a viewer gone away is noticed (by the write).
 const KEEP_ALIVE: Duration = Duration::from_secs(20);
 
 /// How often the latest tasks and events (read from the store) are sent.
@@ -137,7 +138,7 @@ async fn follow(
             moved = changed.changed() => if moved.is_err() { return },
             () = tokio::time::sleep(KEEP_ALIVE) => {
                 // A comment, which readers skip: a quiet mission's view
-                // outlives the listener's idle time (see `limit`).
+                // outlives a proxy's read timeout (see `KEEP_ALIVE`).
                 if sender.send(Bytes::from_static(b": quiet\n\n")).await.is_err() {
                     return;
                 }
