@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 
+import grpc
 from exploration_executive import Executive, pb
 
 
@@ -75,4 +76,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except grpc.RpcError as refused:
+        # The executive's answer says what was wrong; a traceback would bury it.
+        raise SystemExit(f"{refused.code().name}: {refused.details()}") from None

@@ -20,6 +20,7 @@ import threading
 import time
 from collections import deque
 
+import grpc
 import numpy as np
 
 from exploration_executive import FREE, OCCUPIED, Executive, MapServerMap, pb
@@ -130,4 +131,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except grpc.RpcError as refused:
+        # The executive's answer says what was wrong; a traceback would bury it.
+        raise SystemExit(f"{refused.code().name}: {refused.details()}") from None

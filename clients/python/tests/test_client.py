@@ -147,6 +147,12 @@ def test_the_example_operator_lists_watches_and_overrides(open_coordinator: Coor
     assert "1 robots" in run("watch", str(mission.id), "--views", "1")
     # The target is the centre of the cell holding the point.
     assert "goto to (2.05, 1.05)" in run("override", str(robot.id), "--goto", "2,1", "--reason", "look")
+    # A refusal is the executive's status and message, not a traceback.
+    command = [sys.executable, str(EXAMPLES / "operator_console.py"), "--server", open_coordinator.address]
+    refused = subprocess.run(command + ["override", "999", "--hold"], capture_output=True, text=True, timeout=60)
+    assert refused.returncode == 1, refused.stderr
+    assert refused.stderr.startswith("NOT_FOUND: ") and "999" in refused.stderr, refused.stderr
+    assert "Traceback" not in refused.stderr, refused.stderr
 
 
 def test_events_are_read_page_by_page_oldest_first(open_coordinator: Coordinator) -> None:
