@@ -6,6 +6,10 @@
 use std::fmt;
 use std::io::{self, Write};
 
+/// An error and its causes on one line, each cause once (the executive's
+/// own report, so that every binary of the workspace says it alike).
+pub use coordinator::error::report;
+
 /// Standard output did not take a line.
 #[derive(Debug, thiserror::Error)]
 pub enum StdoutError {

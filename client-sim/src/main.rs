@@ -426,7 +426,7 @@ async fn main() -> ExitCode {
         // `fleet-sim bound ... | head`: the reader had what it wanted.
         Err(e) if StdoutError::is_reader_gone(&e) => ExitCode::SUCCESS,
         Err(e) => {
-            errln!("Error: {e:?}");
+            errln!("fleet-sim: {}", client_sim::console::report(e.as_ref()));
             ExitCode::FAILURE
         }
     }

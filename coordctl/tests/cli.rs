@@ -229,3 +229,18 @@ async fn an_operator_lists_overrides_forbids_and_exports_the_map() {
     stop.cancel();
     server.await.unwrap().unwrap();
 }
+
+/// An executive that cannot be reached is reported with why (the
+/// connection refused), not only gRPC's "tcp connect error".
+#[test]
+fn an_unreachable_executive_is_reported_with_the_reason() {
+    let closed = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let url = format!("http://{}", closed.local_addr().unwrap());
+    drop(closed);
+    let output = command(&url, Some(TOKEN), &["missions"]).output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(stderr.starts_with("coordctl: Unavailable: "), "{stderr}");
+    assert!(stderr.contains("Connection refused"), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+}

@@ -148,3 +148,46 @@ pub fn overloaded_for(message: String, wait: std::time::Duration) -> tonic::Stat
     status.metadata_mut().insert(RETRY_PUSHBACK_METADATA, ms.into());
     status
 }
+
+/// An error and its causes on one line, for a person: each cause that its
+/// error's message does not already state is added after a colon. (Our
+/// errors name their cause in their own message, and so do sqlx's and
+/// std's, so the usual chain would say the same thing three times.)
+pub fn report(error: &(dyn std::error::Error + 'static)) -> String {
+    let mut line = error.to_string();
+    let mut cause = error.source();
+    while let Some(error) = cause {
+        let said = error.to_string();
+        if !line.contains(&said) {
+            line.push_str(": ");
+            line.push_str(&said);
+        }
+        cause = error.source();
+    }
+    line
+}
+
+#[cfg(test)]
+mod report_tests {
+    use super::report;
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("could not open the store x.db: {0}")]
+    struct Outer(#[source] Inner);
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("database error: {0}")]
+    struct Inner(#[source] std::io::Error);
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("lock file held")]
+    struct Terse(#[source] std::io::Error);
+
+    #[test]
+    fn a_cause_already_stated_is_not_repeated_and_one_not_stated_is_added() {
+        let repeated = Outer(Inner(std::io::Error::other("file is not a database")));
+        assert_eq!(report(&repeated), "could not open the store x.db: database error: file is not a database");
+        let terse = Terse(std::io::Error::other("Resource busy"));
+        assert_eq!(report(&terse), "lock file held: Resource busy");
+    }
+}

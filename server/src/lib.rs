@@ -123,8 +123,14 @@ impl TlsConfig {
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
     /// The database could not be opened or loaded.
-    #[error("could not open the store: {0}")]
-    Store(#[from] store::StoreError),
+    #[error("could not open the store {location}: {cause}")]
+    Store {
+        /// The file, or the URL without its password.
+        location: String,
+        /// Why not.
+        #[source]
+        cause: store::StoreError,
+    },
     /// Missions could not be restored.
     #[error("could not restore missions: {0}")]
     Restore(#[from] error::Error),
@@ -246,8 +252,11 @@ pub async fn run_with(
         return Err(ServeError::ReplicasNeedPostgres(path.display().to_string()));
     }
     let metrics = Arc::new(metrics::Metrics::new());
-    let store =
-        config.db.open(config.durability, config.executive.replica.is_some(), Some(Arc::clone(&metrics))).await?;
+    let store = config
+        .db
+        .open(config.durability, config.executive.replica.is_some(), Some(Arc::clone(&metrics)))
+        .await
+        .map_err(|cause| ServeError::Store { location: config.db.to_string(), cause })?;
     let clock = config.executive.clock.clone();
     let executive = match Executive::open(Arc::clone(&store), config.executive, Arc::clone(&metrics)).await {
         Ok(executive) => Arc::new(executive),

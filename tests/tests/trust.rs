@@ -348,6 +348,26 @@ async fn a_second_coordinator_on_the_same_database_is_refused() {
     exec.stop().await;
 }
 
+/// A file that is not a database (or a folder) stops the start with one
+/// line that names it and says why once, not a chain repeating itself.
+#[test]
+fn a_file_that_is_not_a_database_is_named_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let garbage = dir.path().join("garbage.db");
+    std::fs::write(&garbage, vec![0x5a; 100_000]).unwrap();
+    let folder = dir.path().join("folder.db");
+    std::fs::create_dir(&folder).unwrap();
+    for (db, cause) in [(&garbage, "file is not a database"), (&folder, "is a folder")] {
+        let (ok, stderr) = coordinator_exits(&[], db);
+        assert!(!ok, "{}: the executive must not start", db.display());
+        let said = stderr.lines().filter(|l| l.starts_with("coordinator: ")).collect::<Vec<_>>();
+        assert_eq!(said.len(), 1, "{stderr}");
+        assert!(said[0].contains(&db.display().to_string()), "names the file: {stderr}");
+        assert_eq!(said[0].matches(cause).count(), 1, "says why once: {stderr}");
+        assert!(!stderr.contains("Caused by") && !stderr.contains("panicked"), "{stderr}");
+    }
+}
+
 /// Defect 6: an empty or blank operator token silently ran open.
 #[test]
 fn a_blank_operator_token_refuses_to_start() {
