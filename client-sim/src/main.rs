@@ -476,7 +476,8 @@ fn load_plot(args: LoadPlotArgs) -> anyhow::Result<()> {
         .reports
         .iter()
         .map(|path| {
-            let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+            let text = coordinator::files::read_text_at_most(path, 256)
+                .with_context(|| format!("cannot read {}", path.display()))?;
             serde_json::from_str(&text).with_context(|| format!("{} is not a load report", path.display()))
         })
         .collect::<anyhow::Result<Vec<serde_json::Value>>>()?;

@@ -89,7 +89,8 @@ pub struct MapDescription {
 impl MapDescription {
     /// Reads a map_server YAML file.
     pub fn load(path: &Path) -> Result<Self, WorldError> {
-        let text = std::fs::read_to_string(path).map_err(|cause| WorldError::Io { path: path.to_owned(), cause })?;
+        let text = coordinator::files::read_text_at_most(path, 1)
+            .map_err(|cause| WorldError::Io { path: path.to_owned(), cause })?;
         let yaml_error = |message: String| WorldError::Yaml { path: path.to_owned(), message };
         let docs = yaml_rust2::YamlLoader::load_from_str(&text).map_err(|e| yaml_error(e.to_string()))?;
         let doc = docs.first().ok_or_else(|| yaml_error("empty document".into()))?;

@@ -55,6 +55,16 @@ fn bad_arguments_fail_with_a_message() {
         .unwrap();
     assert!(!output.status.success());
     assert!(String::from_utf8_lossy(&output.stderr).contains("key=value"));
+
+    // A file without end in place of the map's YAML (it read until memory
+    // ran out), and an experiment config likewise: refused, in one line.
+    for args in [["run", "--map", "/dev/zero"], ["experiment", "--config", "/dev/zero"]] {
+        let output = Command::new(env!("CARGO_BIN_EXE_fleet-sim")).args(args).output().unwrap();
+        assert!(!output.status.success());
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(stderr.contains("/dev/zero: larger than 1 MiB"), "{args:?}: {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{args:?}: {stderr}");
+    }
 }
 
 /// `fleet-sim run --json | head -c 0`: the reader leaves before the report

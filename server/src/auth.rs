@@ -195,11 +195,15 @@ struct TokensFile {
     holders: HashMap<String, Holder>,
 }
 
+/// Most a tokens file may hold: a line per token, about a hundred bytes, so
+/// some 160 000 tokens.
+const TOKENS_FILE_MIB: u64 = 16;
+
 impl TokensFile {
     fn load(path: &Path) -> Result<Self, TokensError> {
         let read = |cause| TokensError::Read { path: path.to_owned(), cause };
         let version = file_version(path).map_err(read)?;
-        let text = std::fs::read_to_string(path).map_err(read)?;
+        let text = crate::files::read_text_at_most(path, TOKENS_FILE_MIB).map_err(read)?;
         Ok(Self { path: path.to_owned(), version: Some(version), holders: parse_tokens(path, &text)? })
     }
 

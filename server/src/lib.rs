@@ -31,6 +31,7 @@ pub mod cpu_limit;
 pub mod domain;
 pub mod error;
 pub mod executive;
+pub mod files;
 pub mod http;
 pub mod metrics;
 pub mod run_to_end;
@@ -113,7 +114,7 @@ impl TlsConfig {
     /// Reads the PEM files.
     pub fn from_files(cert: &Path, key: &Path, client_ca: Option<&Path>) -> std::io::Result<Self> {
         let read = |path: &Path| {
-            std::fs::read(path).map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))
+            files::read_at_most(path, 1).map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))
         };
         Ok(Self { cert_pem: read(cert)?, key_pem: read(key)?, client_ca_pem: client_ca.map(read).transpose()? })
     }

@@ -265,7 +265,7 @@ pub(crate) fn io(path: &Path) -> impl Fn(std::io::Error) -> ExperimentError + '_
 impl Experiment {
     /// Reads an experiment file.
     pub fn load(path: &Path) -> Result<Self, ExperimentError> {
-        let text = std::fs::read_to_string(path).map_err(io(path))?;
+        let text = coordinator::files::read_text_at_most(path, 1).map_err(io(path))?;
         let experiment: Self = toml::from_str(&text)
             .map_err(|e| ExperimentError::Config { path: path.to_owned(), message: e.to_string() })?;
         let bad = |message: String| ExperimentError::Config { path: path.to_owned(), message };
