@@ -16,6 +16,23 @@ pub fn normalize_angle(theta: f64) -> f64 {
     if wrapped > std::f64::consts::PI { wrapped - std::f64::consts::TAU } else { wrapped }
 }
 
+/// A number for a message: as Rust prints it, or in scientific notation
+/// where that would take dozens of digits (a careless client's 1e300 or
+/// 1e-300).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ShortNumber(pub f64);
+
+impl std::fmt::Display for ShortNumber {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let size = self.0.abs();
+        if size == 0.0 || !size.is_finite() || (1e-6..1e9).contains(&size) {
+            write!(f, "{}", self.0)
+        } else {
+            write!(f, "{:e}", self.0)
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -27,5 +44,18 @@ mod tests {
         assert!((normalize_angle(-PI) - PI).abs() < 1e-12);
         assert!((normalize_angle(0.5) - 0.5).abs() < 1e-12);
         assert!((normalize_angle(-0.5) + 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn short_numbers_print_as_written_unless_they_take_dozens_of_digits() {
+        let shown = |v: f64| ShortNumber(v).to_string();
+        assert_eq!(shown(2.5), "2.5");
+        assert_eq!(shown(-86400.0), "-86400");
+        assert_eq!(shown(0.0), "0");
+        assert_eq!(shown(f64::NAN), "NaN");
+        assert_eq!(shown(f64::NEG_INFINITY), "-inf");
+        assert_eq!(shown(1e300), "1e300");
+        assert_eq!(shown(-1e-300), "-1e-300");
+        assert_eq!(shown(f64::MAX).len(), "1.7976931348623157e308".len());
     }
 }

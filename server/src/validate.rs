@@ -9,7 +9,7 @@
 use std::time::Duration;
 
 use exploration::grid::GridFrame;
-use exploration::math::Point2;
+use exploration::math::{Point2, ShortNumber};
 use exploration::policy::Capabilities;
 
 /// Longest side of a mission grid, cells.
@@ -46,7 +46,7 @@ pub fn finite(value: f64, field: &str) -> Result<f64, Invalid> {
     if value.is_finite() {
         Ok(value)
     } else {
-        Err(Invalid::new(field, format!("is {value}; it must be a finite number")))
+        Err(Invalid::new(field, format!("is {}; it must be a finite number", ShortNumber(value))))
     }
 }
 
@@ -56,6 +56,7 @@ pub fn in_range(value: f64, field: &str, min: f64, max: f64, unit: &str) -> Resu
         Ok(value)
     } else {
         let unit = if unit.is_empty() { String::new() } else { format!(" {unit}") };
+        let (value, min, max) = (ShortNumber(value), ShortNumber(min), ShortNumber(max));
         Err(Invalid::new(field, format!("is {value}; it must lie in [{min}, {max}]{unit}")))
     }
 }
@@ -167,7 +168,10 @@ pub fn capabilities(c: Capabilities, prefix: &str) -> Result<Capabilities, Inval
         if v > 0.0 && v <= max {
             Ok(v)
         } else {
-            Err(Invalid::new(format!("{prefix}{field}"), format!("is {v}; it must lie in (0, {max}] {unit}")))
+            Err(Invalid::new(
+                format!("{prefix}{field}"),
+                format!("is {}; it must lie in (0, {max}] {unit}", ShortNumber(v)),
+            ))
         }
     };
     Ok(Capabilities {
@@ -245,7 +249,13 @@ mod tests {
     #[test]
     fn durations_and_counts_refuse_what_would_panic() {
         assert!(seconds(-1.0, "lease_s", 0.1, 10.0).is_err());
-        assert!(seconds(1e300, "lease_s", 0.1, 10.0).is_err());
+        // Named in a few characters, not three hundred digits.
+        assert_eq!(
+            seconds(1e300, "lease_s", 0.1, 10.0).unwrap_err().problem,
+            "is 1e300; it must lie in [0.1, 10] seconds"
+        );
+        let cost = in_range(-1e-300, "bids[0].path_cost", 0.0, f64::MAX, "").unwrap_err();
+        assert_eq!(cost.problem, "is -1e-300; it must lie in [0, 1.7976931348623157e308]");
         assert!(seconds(f64::NAN, "lease_s", 0.1, 10.0).is_err());
         assert_eq!(seconds(2.5, "lease_s", 0.1, 10.0).unwrap(), Duration::from_millis(2500));
         assert!(count(-1, "replans").is_err());

@@ -120,7 +120,7 @@ pub enum PolicyError {
         valid: Vec<&'static str>,
     },
     /// A value outside the parameter's range.
-    #[error("parameter {name:?} of policy {policy:?} is {value}; it must lie in [{min}, {max}]")]
+    #[error("parameter {name:?} of policy {policy:?} is {}; it must lie in [{min}, {max}]", crate::math::ShortNumber(*value))]
     OutOfRange {
         /// The policy.
         policy: &'static str,
