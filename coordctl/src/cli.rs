@@ -248,6 +248,11 @@ fn numbers<const N: usize>(text: &str, what: &str) -> Result<[f64; N], String> {
         .map(|part| part.trim().parse::<f64>())
         .collect::<Result<_, _>>()
         .map_err(|_| format!("`{text}` is not {what}"))?;
+    // Checked here: ordering a rectangle's corners would turn NaN into the
+    // other corner's value, and the executive would never see it.
+    if let Some(odd) = values.iter().find(|v| !v.is_finite()) {
+        return Err(format!("`{text}` holds {odd}; give finite numbers, {what}"));
+    }
     values.try_into().map_err(|_| format!("`{text}` is not {what}"))
 }
 
@@ -279,6 +284,11 @@ mod tests {
         assert_eq!((r.min_x, r.min_y, r.max_x, r.max_y), (1.0, -1.0, 4.0, 3.0));
         assert!(parse_point("1,2,3").is_err());
         assert!(parse_rect("a,b,c,d").is_err());
+        assert_eq!(
+            parse_rect("NaN,0,1,1").unwrap_err(),
+            "`NaN,0,1,1` holds NaN; give finite numbers, x0,y0,x1,y1 in metres"
+        );
+        assert!(parse_point("inf,0").is_err());
         assert_eq!(parse_param("beta=2").unwrap(), ("beta".into(), 2.0));
         assert!(parse_param("beta").is_err());
     }
