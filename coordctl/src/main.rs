@@ -107,8 +107,7 @@ async fn connect(cli: &Cli) -> anyhow::Result<Missions> {
             .map_err(|e| Usage(format!("TLS files: {e}")))?,
         ),
     };
-    let channel =
-        Replicas::from_list(&cli.server, tls.as_ref()).map_err(|e| Usage(format!("--server {}: {e}", cli.server)))?;
+    let channel = Replicas::from_list(&cli.server, tls.as_ref()).map_err(|e| Usage(format!("--server: {e}")))?;
     let bearer = Bearer::new(cli.token.as_deref()).map_err(|_| Usage("the token holds invalid characters".into()))?;
     // A whole map of a big mission is larger than gRPC's default 4 MiB.
     Ok(MissionsClient::with_interceptor(channel, bearer)

@@ -244,3 +244,20 @@ fn an_unreachable_executive_is_reported_with_the_reason() {
     assert!(stderr.contains("Connection refused"), "{stderr}");
     assert_eq!(stderr.lines().count(), 1, "{stderr}");
 }
+
+/// Addresses the transport would dial somewhere else than meant (another
+/// scheme read as http, a port it cannot read read as 80, nothing at all
+/// read as a dead address) are refused before any call, as usage errors.
+#[test]
+fn addresses_that_would_be_misread_are_refused_before_any_call() {
+    for (url, problem) in [
+        ("htp://x", "must start with http:// or https://"),
+        ("http://127.0.0.1:99999", "has a port outside 1 to 65535"),
+        (" , ", "give at least one address"),
+    ] {
+        let output = command(url, Some(TOKEN), &["missions"]).output().unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{url}: {stderr}");
+        assert!(stderr.starts_with("coordctl: --server: ") && stderr.contains(problem), "{url}: {stderr}");
+    }
+}

@@ -198,9 +198,57 @@ pub mod client {
         Some(Duration::from_millis(ms.min(10_000)))
     }
 
+    /// Why an executive's address cannot be dialled.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    pub struct BadAddress(String);
+
+    impl std::fmt::Display for BadAddress {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str(&self.0)
+        }
+    }
+
+    impl std::error::Error for BadAddress {}
+
+    impl BadAddress {
+        /// A problem that concerns no one address.
+        pub fn from_problem(problem: &str) -> Self {
+            Self(problem.to_owned())
+        }
+    }
+
+    impl From<tonic::transport::Error> for BadAddress {
+        fn from(e: tonic::transport::Error) -> Self {
+            Self(e.to_string())
+        }
+    }
+
+    /// Checks what the transport would take silently: `htp://host` dialled
+    /// as if it were `http://`, `host:99999` dialled on port 80.
+    pub fn check_url(url: &str) -> Result<(), BadAddress> {
+        let bad = |problem: &str| Err(BadAddress(format!("`{}` {problem}", url.escape_debug())));
+        let Ok(uri) = url.parse::<tonic::codegen::http::Uri>() else {
+            return bad("is not a URL; give http://HOST:PORT or https://HOST:PORT");
+        };
+        if !matches!(uri.scheme_str(), Some("http" | "https")) {
+            return bad("must start with http:// or https://");
+        }
+        let Some(authority) = uri.authority().filter(|a| !a.host().is_empty()) else {
+            return bad("names no host");
+        };
+        // The port is what follows the last colon past the host (an IPv6
+        // host is in brackets); the URI parser forgets one it cannot read.
+        let after_host = authority.as_str().rsplit_once(']').map_or(authority.as_str(), |(_, rest)| rest);
+        if after_host.contains(':') && authority.port_u16().is_none_or(|port| port == 0) {
+            return bad("has a port outside 1 to 65535");
+        }
+        Ok(())
+    }
+
     /// An endpoint for `url`: TLS when the URL is `https://` or `tls` is
     /// given (then the URL must be `https://`).
-    pub fn endpoint(url: &str, tls: Option<&ClientTls>) -> Result<Endpoint, tonic::transport::Error> {
+    pub fn endpoint(url: &str, tls: Option<&ClientTls>) -> Result<Endpoint, BadAddress> {
+        check_url(url)?;
         let endpoint = Endpoint::from_shared(url.to_owned())?.connect_timeout(Duration::from_secs(5));
         if tls.is_none() && !url.starts_with("https://") {
             return Ok(endpoint);
@@ -213,7 +261,7 @@ pub mod client {
         if let Some((cert, key)) = tls.and_then(|t| t.identity.as_ref()) {
             config = config.identity(Identity::from_pem(cert, key));
         }
-        endpoint.tls_config(config)
+        Ok(endpoint.tls_config(config)?)
     }
 
     /// A warning to print when a bearer token would cross a network in
@@ -247,6 +295,27 @@ pub mod client {
             assert!(plaintext_token_warning("http://localhost:50051", token).is_none());
             assert!(plaintext_token_warning("https://10.0.0.5:50051", token).is_none());
             assert!(plaintext_token_warning("http://10.0.0.5:50051", None).is_none());
+        }
+
+        /// What the transport would dial somewhere else than meant is refused
+        /// with the address and what is wrong with it.
+        #[test]
+        fn addresses_the_transport_would_misread_are_refused() {
+            for good in ["http://127.0.0.1:50051", "https://robots.example", "http://[::1]:1", "http://h:65535/"] {
+                assert_eq!(check_url(good), Ok(()), "{good}");
+            }
+            let problem = |url: &str| check_url(url).unwrap_err().to_string();
+            assert_eq!(problem("htp://x"), "`htp://x` must start with http:// or https://");
+            assert_eq!(problem("127.0.0.1:50051"), "`127.0.0.1:50051` must start with http:// or https://");
+            assert_eq!(problem("http://127.0.0.1:99999"), "`http://127.0.0.1:99999` has a port outside 1 to 65535");
+            assert_eq!(problem("http://h:0"), "`http://h:0` has a port outside 1 to 65535");
+            assert_eq!(problem("http://[::1]:70000"), "`http://[::1]:70000` has a port outside 1 to 65535");
+            assert!(problem("http://").contains("is not a URL"), "{}", problem("http://"));
+            assert_eq!(
+                problem("http://a\u{1}b"),
+                "`http://a\\u{1}b` is not a URL; give http://HOST:PORT or https://HOST:PORT"
+            );
+            assert!(endpoint("htp://x", None).is_err());
         }
 
         /// The hint comes from the network: anything but a number of

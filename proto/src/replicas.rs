@@ -23,7 +23,7 @@ use tonic::body::Body;
 use tonic::codegen::{Service, http};
 use tonic::transport::{Channel, Endpoint};
 
-use crate::client::ClientTls;
+use crate::client::{BadAddress, ClientTls};
 
 /// The response metadata naming the replica that holds a mission.
 pub const OWNER_METADATA: &str = "exploration-owner";
@@ -59,7 +59,10 @@ struct State {
 impl Replicas {
     /// Channels to `addresses` (URLs, at least one), over TLS as
     /// [`crate::client::endpoint`] decides; none connects before its first call.
-    pub fn new(addresses: &[String], tls: Option<&ClientTls>) -> Result<Self, tonic::transport::Error> {
+    pub fn new(addresses: &[String], tls: Option<&ClientTls>) -> Result<Self, BadAddress> {
+        if addresses.is_empty() {
+            return Err(BadAddress::from_problem("give at least one address: http://HOST:PORT or https://HOST:PORT"));
+        }
         let mut channels = HashMap::new();
         for address in addresses {
             channels.insert(address.clone(), Self::connect(address, tls)?);
@@ -75,7 +78,7 @@ impl Replicas {
     }
 
     /// A comma-separated list of URLs, as `--server` takes them.
-    pub fn from_list(list: &str, tls: Option<&ClientTls>) -> Result<Self, tonic::transport::Error> {
+    pub fn from_list(list: &str, tls: Option<&ClientTls>) -> Result<Self, BadAddress> {
         let addresses: Vec<String> =
             list.split(',').map(str::trim).filter(|a| !a.is_empty()).map(str::to_owned).collect();
         Self::new(&addresses, tls)
@@ -86,7 +89,7 @@ impl Replicas {
         self.shared.lock().current.clone()
     }
 
-    fn connect(address: &str, tls: Option<&ClientTls>) -> Result<Channel, tonic::transport::Error> {
+    fn connect(address: &str, tls: Option<&ClientTls>) -> Result<Channel, BadAddress> {
         Ok(crate::client::endpoint(address, tls)?.tcp_nodelay(true).connect_lazy())
     }
 }
@@ -102,7 +105,7 @@ impl Shared {
         let channel = state.channels.get(&state.current).cloned();
         match channel {
             Some(channel) => (state.current.clone(), channel),
-            // Every current address has a channel; an empty list has none.
+            // Every current address has a channel (the list is never empty).
             None => (state.current.clone(), Endpoint::from_static("http://[::1]:1").connect_lazy()),
         }
     }

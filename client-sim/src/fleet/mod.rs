@@ -162,6 +162,10 @@ pub enum SimError {
     /// The embedded executive could not start.
     #[error("cannot start the embedded executive: {0}")]
     Executive(String),
+    /// The fleet's own side cannot go on: the executive's address or the
+    /// token it was given are unusable, or a robot's task failed.
+    #[error("{0}")]
+    Fleet(String),
     /// The configuration cannot run.
     #[error("{0}")]
     Config(String),
@@ -250,7 +254,7 @@ async fn policy_info(missions: &Missions, name: &str, budget: Duration) -> Resul
         .policies
         .into_iter()
         .find(|p| p.name == name)
-        .ok_or_else(|| SimError::Executive(format!("the executive offers no policy {name:?}")))
+        .ok_or_else(|| SimError::Fleet(format!("the executive offers no policy {name:?}")))
 }
 
 /// Calls the executive on a clone of the client, retrying through restarts
@@ -324,14 +328,13 @@ fn missions_client(config: &RunConfig, url: &str, token: Option<&str>) -> Result
         }
     }
     let channel = Replicas::from_list(url, config.tls.as_ref())
-        .map_err(|e| SimError::Executive(format!("bad executive URL or TLS settings for {url}: {e}")))?;
+        .map_err(|e| SimError::Fleet(format!("bad executive URL or TLS settings: {e}")))?;
     Ok(MissionsClient::with_interceptor(channel, bearer(token)?))
 }
 
 /// The interceptor that sends `token`, if it is valid metadata.
 pub(crate) fn bearer(token: Option<&str>) -> Result<exploration_proto::Bearer, SimError> {
-    exploration_proto::Bearer::new(token)
-        .map_err(|e| SimError::Executive(format!("the token is not valid metadata: {e}")))
+    exploration_proto::Bearer::new(token).map_err(|e| SimError::Fleet(format!("the token is not valid metadata: {e}")))
 }
 
 /// Creates the run's mission, in lockstep so that a seed gives the same run

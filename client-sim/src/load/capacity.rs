@@ -35,7 +35,7 @@ pub(super) async fn measure(
             .collect(),
     );
     let shared = exploration_proto::client::endpoint(url, config.tls.as_ref())
-        .map_err(|e| SimError::Executive(e.to_string()))?
+        .map_err(|e| SimError::Fleet(format!("bad executive URL or TLS settings: {e}")))?
         .connect_lazy();
     let empty_one_connection =
         closed_loop(config.capacity, callers, false, move |_| empty_call(shared.clone())).await.0;

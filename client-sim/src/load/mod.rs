@@ -240,7 +240,7 @@ impl Connector<'_> {
     fn channel(&self) -> Result<Channel, SimError> {
         exploration_proto::client::endpoint(self.url, self.tls)
             .map(|e| e.tcp_nodelay(true).timeout(Duration::from_secs(10)).connect_lazy())
-            .map_err(|e| SimError::Executive(format!("bad executive URL or TLS settings for {}: {e}", self.url)))
+            .map_err(|e| SimError::Fleet(format!("bad executive URL or TLS settings: {e}")))
     }
 }
 
@@ -403,7 +403,7 @@ async fn real_rate_phase(
     }
     let probe = tokio::spawn(probe_empty_calls(connect.channel()?, Arc::clone(recorder), until));
     while let Some(done) = drivers.join_next().await {
-        done.map_err(|e| SimError::Executive(format!("a robot task failed: {e}")))?;
+        done.map_err(|e| SimError::Fleet(format!("a robot task failed: {e}")))?;
     }
     let _ = probe.await;
     Ok(())

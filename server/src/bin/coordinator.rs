@@ -211,11 +211,11 @@ fn replica_settings(args: &Args, tls: bool) -> anyhow::Result<Option<ReplicaSett
         }
     };
     anyhow::ensure!(
-        (advertise.starts_with("http://") || advertise.starts_with("https://"))
-            && advertise.len() <= 512
-            && advertise.bytes().all(|b| b.is_ascii_graphic()),
-        "--advertise must be an http:// or https:// URL"
+        advertise.len() <= 512 && advertise.bytes().all(|b| b.is_ascii_graphic()),
+        "--advertise must be an http:// or https:// URL of at most 512 printable characters"
     );
+    // Clients dial it as they dial --server: what they would misread is refused here.
+    exploration_proto::client::check_url(&advertise).context("--advertise")?;
     Ok(Some(ReplicaSettings {
         claimant: Claimant { id: id.clone(), address: advertise },
         lease: Duration::from_secs_f64(args.lease_period),
