@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use anyhow::{Context, bail};
+use anyhow::{Context, anyhow, bail, ensure};
 use clap::{Args, Parser, Subcommand};
 use tracing_subscriber::EnvFilter;
 
@@ -17,7 +17,7 @@ use client_sim::robot::RobotModel;
 use client_sim::world::StartChoice;
 use client_sim::{RunConfig, RunReport};
 use client_sim::{errln, outln};
-use exploration::math::Point2;
+use exploration::math::{Point2, ShortNumber};
 
 /// Planning allocates a cost map per robot (megabytes each) and drops it
 /// when the plan is made; the system allocator hands such blocks back to
@@ -25,6 +25,9 @@ use exploration::math::Point2;
 /// a replanning went to page faults. mimalloc keeps them.
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+/// Longest `--retry-for`: a day of retrying an unreachable executive.
+const MAX_RETRY_BUDGET: Duration = Duration::from_secs(86_400);
 
 /// A simulated robot fleet that explores a building map against the exploration executive.
 #[derive(Debug, Parser)]
@@ -517,11 +520,14 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
         "spread" => Layout::Spread,
         other => bail!("--layout {other:?}: expected together or spread"),
     };
-    config.interference = (args.interference < 1.0)
-        .then_some(Interference { radius_m: args.interference_radius, success: args.interference.clamp(0.0, 1.0) });
-    config.comm_range = args.comm_range.as_deref().map(parse_comm_range).transpose()?;
+    config.interference = Interference::with(args.interference, args.interference_radius).map_err(|e| anyhow!(e))?;
+    config.comm_range = args.comm_range.as_deref().map(CommRange::parse).transpose().map_err(|e| anyhow!(e))?;
+    ensure!(args.max_steps >= 1, "--max-steps must be at least 1");
     config.max_steps = args.max_steps;
-    config.retry_budget = Duration::from_secs_f64(args.retry_for);
+    config.retry_budget = Duration::try_from_secs_f64(args.retry_for)
+        .ok()
+        .filter(|budget| *budget <= MAX_RETRY_BUDGET)
+        .with_context(|| format!("--retry-for {}: give seconds from 0 to a day", ShortNumber(args.retry_for)))?;
     config.progress = !args.quiet && !args.json;
     config.lease_s = args.lease;
     config.stall_s = args.stall;
@@ -529,6 +535,7 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
         bail!("--view shows the embedded executive; for one given by --server, start it with --http");
     }
     let pace_ms = args.pace_ms.unwrap_or(if args.view.is_some() { 40 } else { 0 });
+    ensure!(pace_ms <= 60_000, "--pace-ms {pace_ms}: at most a minute (60000) per step");
     config.pace = (pace_ms > 0).then(|| Duration::from_millis(pace_ms));
     config.view = args.view;
     config.linger = args.view.is_some();
@@ -642,15 +649,6 @@ fn parse_model(s: &str, base: RobotModel) -> anyhow::Result<RobotModel> {
         }
     }
     Ok(model)
-}
-
-fn parse_comm_range(s: &str) -> anyhow::Result<CommRange> {
-    Ok(match s.strip_suffix('d') {
-        Some(share) => CommRange::OfDiameter(share.trim().parse().with_context(|| format!("--comm-range {s:?}"))?),
-        None => {
-            CommRange::Metres(s.trim().trim_end_matches('m').parse().with_context(|| format!("--comm-range {s:?}"))?)
-        }
-    })
 }
 
 fn print_summary(r: &RunReport, return_home: bool) -> Result<(), StdoutError> {

@@ -56,6 +56,27 @@ fn bad_arguments_fail_with_a_message() {
     assert!(!output.status.success());
     assert!(String::from_utf8_lossy(&output.stderr).contains("key=value"));
 
+    // Values that panicked (a NaN or huge duration) or were clamped or taken
+    // without a word: each refused with what is wrong, before the run.
+    for (flag, value, said) in [
+        ("--retry-for", "NaN", "--retry-for NaN: give seconds from 0 to a day"),
+        ("--retry-for", "1e300", "--retry-for 1e300: give seconds from 0 to a day"),
+        ("--interference", "2", "interference 2: a move's probability must lie in [0, 1]"),
+        ("--interference", "NaN", "interference NaN"),
+        ("--comm-range", "NaN", "communication range \"NaN\""),
+        ("--max-steps", "0", "--max-steps must be at least 1"),
+    ] {
+        let map = Path::new(env!("CARGO_MANIFEST_DIR")).join("../maps/nav2_depot.yaml");
+        let output = Command::new(env!("CARGO_BIN_EXE_fleet-sim"))
+            .args(["run", flag, value, "--map"])
+            .arg(&map)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(1), "{flag} {value}: {stderr}");
+        assert!(stderr.contains(said), "{flag} {value}: {stderr}");
+    }
+
     // A file without end in place of the map's YAML (it read until memory
     // ran out), and an experiment config likewise: refused, in one line.
     for args in [["run", "--map", "/dev/zero"], ["experiment", "--config", "/dev/zero"]] {

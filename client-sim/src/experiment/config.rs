@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::fleet::{CommRange, DEFAULT_MODEL};
+use crate::fleet::{CommRange, DEFAULT_MODEL, Interference};
 use crate::generate::Generator;
 
 /// An experiment, as its TOML file describes it.
@@ -281,21 +281,21 @@ impl Experiment {
                 _ => return Err(bad(format!("world {:?}: give either map or generator", w.name))),
             }
         }
+        Interference::with(experiment.sim.interference, experiment.sim.interference_radius).map_err(bad)?;
+        if experiment.sim.max_steps == 0 {
+            return Err(bad("max_steps must be at least 1".into()));
+        }
         for r in &experiment.comm_ranges {
-            parse_range(r).ok_or_else(|| bad(format!("communication range {r:?}: unlimited, metres or 0.3d")))?;
+            parse_range(r).map_err(|e| bad(format!("{e}, or unlimited")))?;
         }
         Ok(experiment)
     }
 }
 
 /// A communication range: `None` for unlimited.
-pub(crate) fn parse_range(s: &str) -> Option<Option<CommRange>> {
-    let s = s.trim();
-    if s == "unlimited" {
-        return Some(None);
-    }
-    match s.strip_suffix('d') {
-        Some(share) => share.trim().parse().ok().map(|v| Some(CommRange::OfDiameter(v))),
-        None => s.trim_end_matches('m').parse().ok().map(|v| Some(CommRange::Metres(v))),
+pub(crate) fn parse_range(s: &str) -> Result<Option<CommRange>, String> {
+    match s.trim() {
+        "unlimited" => Ok(None),
+        range => CommRange::parse(range).map(Some),
     }
 }

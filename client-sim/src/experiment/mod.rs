@@ -145,9 +145,8 @@ pub(crate) fn run_config(
         "spread" => Layout::Spread,
         other => return Err(format!("unknown layout {other:?}")),
     };
-    config.interference = (sim.interference < 1.0)
-        .then_some(Interference { radius_m: sim.interference_radius, success: sim.interference });
-    config.comm_range = parse_range(&spec.comm).ok_or("bad communication range")?;
+    config.interference = Interference::with(sim.interference, sim.interference_radius)?;
+    config.comm_range = parse_range(&spec.comm)?;
     config.max_steps = sim.max_steps;
     Ok(config)
 }

@@ -6,6 +6,8 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
+use exploration::math::ShortNumber;
+
 use crate::generate::{Generator, generate};
 use crate::robot::RobotModel;
 use crate::world::{StartChoice, World, WorldError};
@@ -49,6 +51,24 @@ pub struct Interference {
     pub success: f64,
 }
 
+impl Interference {
+    /// Interference where a move near another robot (closer than
+    /// `radius_m`) happens with probability `success`; none when `success`
+    /// is 1. NaN or values outside their ranges are refused, not clamped.
+    pub fn with(success: f64, radius_m: f64) -> Result<Option<Self>, String> {
+        if !(0.0..=1.0).contains(&success) {
+            return Err(format!("interference {}: a move's probability must lie in [0, 1]", ShortNumber(success)));
+        }
+        if !(radius_m.is_finite() && radius_m >= 0.0) {
+            return Err(format!(
+                "interference radius {}: give a finite distance of 0 metres or more",
+                ShortNumber(radius_m)
+            ));
+        }
+        Ok((success < 1.0).then_some(Self { radius_m, success }))
+    }
+}
+
 /// How far robots can communicate (Burgard et al. 2005, §II-D).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum CommRange {
@@ -59,6 +79,22 @@ pub enum CommRange {
 }
 
 impl CommRange {
+    /// Metres (`5`, `5m`) or a share of the map's diameter (`0.3d`); a range
+    /// must be a positive number.
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let text = text.trim();
+        let (range, number) = match text.strip_suffix('d') {
+            Some(share) => (Self::OfDiameter as fn(f64) -> Self, share),
+            None => (Self::Metres as fn(f64) -> Self, text.strip_suffix('m').unwrap_or(text)),
+        };
+        match number.trim().parse::<f64>() {
+            Ok(value) if value.is_finite() && value > 0.0 => Ok(range(value)),
+            _ => Err(format!(
+                "communication range {text:?}: give a positive number of metres (5) or a share of the map's diameter (0.3d)"
+            )),
+        }
+    }
+
     /// The range in metres on `world`.
     pub fn metres(&self, world: &World) -> f64 {
         match self {
@@ -226,5 +262,15 @@ mod tests {
         let world = generate(Generator::Empty, 30.0, 40.0, 0.5, 1, StartChoice::Auto).unwrap();
         assert_eq!(CommRange::Metres(7.0).metres(&world), 7.0);
         assert!((CommRange::OfDiameter(0.3).metres(&world) - 15.0).abs() < 1e-9);
+        assert_eq!(Interference::with(0.7, 1.0), Ok(Some(Interference { radius_m: 1.0, success: 0.7 })));
+        assert_eq!(Interference::with(1.0, 1.0), Ok(None), "1: no interference");
+        for (success, radius) in [(f64::NAN, 1.0), (1.5, 1.0), (-0.1, 1.0), (0.7, f64::NAN), (0.7, -1.0)] {
+            assert!(Interference::with(success, radius).is_err(), "{success} {radius}");
+        }
+        assert_eq!(CommRange::parse(" 5m "), Ok(CommRange::Metres(5.0)));
+        assert_eq!(CommRange::parse("0.3d"), Ok(CommRange::OfDiameter(0.3)));
+        for bad in ["NaN", "-2", "0", "infd", "five", ""] {
+            assert!(CommRange::parse(bad).is_err(), "{bad:?}");
+        }
     }
 }
