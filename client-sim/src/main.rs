@@ -26,6 +26,9 @@ use exploration::math::{Point2, ShortNumber};
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+/// Most calls of one kind a simulated robot sends per second under load.
+const MAX_ROBOT_HZ: f64 = 100.0;
+
 /// Longest `--retry-for`: a day of retrying an unreachable executive.
 const MAX_RETRY_BUDGET: Duration = Duration::from_secs(86_400);
 
@@ -441,6 +444,20 @@ async fn load(args: LoadArgs) -> anyhow::Result<()> {
         Ok(Duration::from_secs_f64(v))
     };
     anyhow::ensure!(args.rate_scale > 0.0 && args.rate_scale.is_finite(), "--rate-scale must be positive");
+    // A robot's own rates: a real one heartbeats at a few hertz. Beyond this
+    // the schedule's periods shrink towards nothing and the tool, not the
+    // executive, is what gets measured (1e9 Hz never finished).
+    for (flag, hz) in [("--heartbeat-hz", args.heartbeat_hz), ("--map-hz", args.map_hz)] {
+        let scaled = hz * args.rate_scale;
+        anyhow::ensure!(
+            (0.0..=MAX_ROBOT_HZ).contains(&scaled),
+            "{flag} {} (× --rate-scale {}): a robot's rate must lie in [0, {MAX_ROBOT_HZ}] per second",
+            ShortNumber(hz),
+            ShortNumber(args.rate_scale)
+        );
+    }
+    anyhow::ensure!(args.capacity_callers != Some(0), "--capacity-callers must be at least 1");
+    anyhow::ensure!(args.executive_pid != Some(0), "--executive-pid must name a process (1 or more)");
     let warehouse = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../maps/nav2_warehouse.yaml");
     let world = args.world.spec(Some(warehouse))?;
     let config = client_sim::load::LoadConfig {

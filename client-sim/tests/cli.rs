@@ -77,6 +77,18 @@ fn bad_arguments_fail_with_a_message() {
         assert!(stderr.contains(said), "{flag} {value}: {stderr}");
     }
 
+    // Load rates no robot sends (1e9 Hz never finished; NaN sent at 1e-3 Hz).
+    for (args, said) in [
+        (["--heartbeat-hz", "NaN"], "--heartbeat-hz NaN (× --rate-scale 1): a robot's rate must lie in [0, 100]"),
+        (["--rate-scale", "1e9"], "--heartbeat-hz 2 (× --rate-scale 1e9)"),
+        (["--capacity-callers", "0"], "--capacity-callers must be at least 1"),
+    ] {
+        let output = Command::new(env!("CARGO_BIN_EXE_fleet-sim")).arg("load").args(args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(1), "{args:?}: {stderr}");
+        assert!(stderr.contains(said), "{args:?}: {stderr}");
+    }
+
     // A file without end in place of the map's YAML (it read until memory
     // ran out), and an experiment config likewise: refused, in one line.
     for args in [["run", "--map", "/dev/zero"], ["experiment", "--config", "/dev/zero"]] {
