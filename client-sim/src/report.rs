@@ -228,7 +228,8 @@ pub fn write_report(experiments: &[(Experiment, std::path::PathBuf)], out: &Path
         let ok = rows.iter().filter(|r| r.get("status").map(String::as_str) == Some("ok")).count();
         let failed = rows.len() - ok;
         let completed = rows.iter().filter(|r| r.get("completed").map(String::as_str) == Some("true")).count();
-        let wall: f64 = rows.iter().filter_map(|r| r.get("wall_time_s")?.parse::<f64>().ok()).sum();
+        // A fold from +0, not `sum`, whose empty sum is -0 ("-0 s of run time").
+        let wall = rows.iter().filter_map(|r| r.get("wall_time_s")?.parse::<f64>().ok()).fold(0.0, |a, b| a + b);
         let seeds = seeds_done(experiment, &rows);
         let _ = writeln!(md, "## {} — `{}`\n", experiment.paper, experiment.name);
         let _ = writeln!(md, "**Claim.** {}\n", experiment.claim);

@@ -55,6 +55,19 @@ async fn the_ci_experiment_runs_end_to_end_and_resumes() {
     assert!(text.contains("**Claim.**") && text.contains("| robots | nearest | burgard |"), "{text}");
 }
 
+/// An experiment not run yet is reported as such, with no time spent (an
+/// empty sum of f64 is -0, which printed as "-0 s").
+#[test]
+fn an_experiment_without_runs_is_reported_with_none_done() {
+    let out = tempfile::tempdir().unwrap();
+    let experiment = client_sim::experiment::Experiment::load(&workspace().join("experiments/ci-small.toml")).unwrap();
+    let report = out.path().join("results.md");
+    client_sim::report::write_report(&[(experiment, out.path().to_owned())], &report).unwrap();
+    let text = std::fs::read_to_string(&report).unwrap();
+    assert!(text.contains("Runs: 0 done"), "{text}");
+    assert!(text.contains(", 0 s of run time in all") && !text.contains("-0 s"), "{text}");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn runs_that_hang_or_fail_are_recorded_and_the_rest_go_on() {
     let dir = tempfile::tempdir().unwrap();
