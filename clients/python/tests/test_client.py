@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import REPOSITORY, TOKEN, Coordinator, follow_assignments, goto_from, wait_for
 
-from exploration_executive import Executive, MapServerMap, patch_from_grid, pb
+from exploration_executive import Executive, MapServerMap, patch_from_grid, pb, read_pgm
 
 WAREHOUSE = REPOSITORY / "maps" / "nav2_warehouse.yaml"
 EXAMPLES = REPOSITORY / "clients" / "python" / "examples"
@@ -63,6 +63,23 @@ def test_numpy_grids_become_patches_of_the_fused_map(open_coordinator: Coordinat
         assert refused.value.code() == grpc.StatusCode.INVALID_ARGUMENT
         assert "patch" in refused.value.details()
         robot.close()
+
+
+def test_a_truncated_or_foreign_image_is_refused_not_read_for_ever(tmp_path) -> None:
+    image = tmp_path / "map.pgm"
+    # b"P5" alone looped for ever: the header scan never met the data's end.
+    for data, problem in [
+        (b"P5", "ends after 1 of its 4 fields"),
+        (b"P5 4 # a comment without its line's end", "ends after 2 of its 4 fields"),
+        (b"P6 2 2 255\n" + bytes(12), "found the header b'P6 2 2 255'"),
+        (b"P5 x 2 255\n", "found the header"),
+        (b"P5 4 4 255\n" + bytes(3), "4 × 4 pixels announced, 3 bytes follow"),
+    ]:
+        image.write_bytes(data)
+        with pytest.raises(ValueError, match=problem):
+            read_pgm(image)
+    image.write_bytes(b"P5\n# made by hand\n2 1\n255\n" + bytes([0, 254]))
+    assert read_pgm(image).tolist() == [[0, 254]]
 
 
 def test_malformed_grids_are_refused_before_anything_is_sent() -> None:

@@ -85,18 +85,28 @@ def read_pgm(path: str | Path) -> np.ndarray:
     data = Path(path).read_bytes()
     fields: list[bytes] = []
     i = 0
+    # Every scan stops at the end of the data: a truncated header (b"P5")
+    # must be an error, not a loop that never ends.
     while len(fields) < 4:
-        while data[i : i + 1].isspace():
+        while i < len(data) and data[i : i + 1].isspace():
             i += 1
+        if i >= len(data):
+            raise ValueError(f"{path}: the PGM header ends after {len(fields)} of its 4 fields")
         if data[i : i + 1] == b"#":
-            i = data.index(b"\n", i) + 1
+            i = data.find(b"\n", i)
+            i = len(data) if i < 0 else i + 1
             continue
         start = i
-        while not data[i : i + 1].isspace():
+        while i < len(data) and not data[i : i + 1].isspace():
             i += 1
         fields.append(data[start:i])
-    magic, width, height, maxval = fields[0], int(fields[1]), int(fields[2]), int(fields[3])
-    if magic != b"P5" or maxval > 255:
-        raise ValueError(f"{path}: only 8-bit binary PGM (P5) is read, found {magic!r} with maxval {maxval}")
+    magic = fields[0]
+    if magic != b"P5" or not all(f.isdigit() for f in fields[1:]):
+        raise ValueError(f"{path}: only 8-bit binary PGM (P5) is read, found the header {b' '.join(fields)!r}")
+    width, height, maxval = (int(f) for f in fields[1:])
+    if maxval > 255 or width == 0 or height == 0:
+        raise ValueError(f"{path}: only 8-bit binary PGM (P5) is read, found {width} × {height} with maxval {maxval}")
+    if len(data) - (i + 1) < width * height:
+        raise ValueError(f"{path}: {width} × {height} pixels announced, {max(0, len(data) - i - 1)} bytes follow")
     pixels = np.frombuffer(data, dtype=np.uint8, count=width * height, offset=i + 1)
     return pixels.reshape(height, width)
