@@ -165,6 +165,11 @@ async fn an_operator_lists_overrides_forbids_and_exports_the_map() {
     let released = json(&coordctl(&url, Some(TOKEN), &["--json", "override", &mission, "scout", "release"]).await);
     assert_ne!(released[0]["task_kind"], "goto", "the override has ended");
     until_exploring(&url, &mission).await;
+    // A refusal names the robot as the operator does, not only by its id.
+    let cancel = coordctl(&url, Some(TOKEN), &["override", &mission, "scout", "cancel"]).await;
+    let said = String::from_utf8_lossy(&cancel.stderr);
+    assert_eq!(cancel.status.code(), Some(4), "{said}");
+    assert!(said.contains("(scout) is on ") && said.contains("not on an override"), "{said}");
 
     // A forbidden region shows in the mission and in the exported map.
     let region =

@@ -356,6 +356,14 @@ pub struct RobotRecord {
     pub home: Point2,
 }
 
+impl RobotRecord {
+    /// How messages and events name it: `robot 3 (scout-a)`, the id for
+    /// scripts and the name operators gave it.
+    pub fn label(&self) -> String {
+        format!("robot {} ({})", self.id, self.name)
+    }
+}
+
 /// A map update as the executive applies it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MapUpdate {

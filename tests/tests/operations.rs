@@ -174,7 +174,9 @@ async fn a_silent_robot_loses_its_task_and_comes_back_when_it_reports() {
     let last = released.transitions.last().unwrap();
     assert_eq!(last.actor, "lease");
     assert!(last.cause.contains("lease 10 s"), "{}", last.cause);
-    assert!(site.events(mission.id).await.iter().any(|e| e.kind == "robot_lost" && e.detail.contains("robot 1")));
+    // Named as operators know it, and by id for scripts.
+    let lost = format!("robot {} (a): no report", a.id);
+    assert!(site.events(mission.id).await.iter().any(|e| e.kind == "robot_lost" && e.detail.starts_with(&lost)));
     // Its lost state is kept in the store and survives the listing.
     let listed = site.operator().list_robots(pb::ListRobotsRequest { mission_id: mission.id }).await.unwrap();
     assert!(listed.into_inner().robots.iter().any(|r| r.id == a.id && r.lost));

@@ -196,7 +196,7 @@ impl Mission {
                 }
                 next.assignment_version += 1;
                 changes.robots.push(next);
-                changes.events.push(self.event("robot_lost", format!("robot {}: {cause}", robot.id), "lease", at));
+                changes.events.push(self.event("robot_lost", format!("{}: {cause}", robot.label()), "lease", at));
                 continue;
             }
             let Some((task, progress)) = task.zip(slot.progress) else { continue };

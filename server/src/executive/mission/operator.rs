@@ -55,6 +55,7 @@ impl Mission {
         task_ids: &AtomicU64,
     ) -> Result<Changeset, Error> {
         let robot = self.robot(robot_id)?;
+        let label = robot.label();
         let current = robot.current_task.and_then(|t| self.open_tasks.get(&t));
         let said = |what: String| if note.reason.is_empty() { what } else { format!("{what}: {}", note.reason) };
         let mut changes = Changeset { at: Some(now), ..Changeset::default() };
@@ -66,7 +67,7 @@ impl Mission {
                 let (state, verb) = if action == Override::Release {
                     let Some(task) = current else {
                         return Err(Error::FailedPrecondition(format!(
-                            "robot {robot_id} has no task to release; `coordctl robots` shows what each robot does"
+                            "{label} has no task to release; `coordctl robots` shows what each robot does"
                         )));
                     };
                     (TaskState::Released, format!("released from task {}", task.id))
@@ -77,7 +78,7 @@ impl Mission {
                         }
                         Some(task) => {
                             return Err(Error::FailedPrecondition(format!(
-                                "robot {robot_id} is on {} task {} chosen by the {}, not on an override; use \
+                                "{label} is on {} task {} chosen by the {}, not on an override; use \
                                  `release` to take the task off it",
                                 task.kind.as_str(),
                                 task.id,
@@ -85,9 +86,7 @@ impl Mission {
                             )));
                         }
                         None => {
-                            return Err(Error::FailedPrecondition(format!(
-                                "robot {robot_id} has no override to cancel"
-                            )));
+                            return Err(Error::FailedPrecondition(format!("{label} has no override to cancel")));
                         }
                     }
                 };
@@ -95,7 +94,7 @@ impl Mission {
                 let cause = said(format!("operator {}: {verb}", note.actor));
                 changes.task_changes.push(operator_transition(task, state, &cause, &note.actor, now));
                 next.current_task = None;
-                detail = format!("robot {robot_id}: {verb}");
+                detail = format!("{label}: {verb}");
             }
             Override::Goto(_)
             | Override::ExploreRegion(..)
@@ -104,12 +103,11 @@ impl Mission {
             | Override::PinFrontier(_) => {
                 if robot.lost {
                     return Err(Error::FailedPrecondition(format!(
-                        "robot {robot_id} is lost (its lease ran out); it rejoins when it reports again, override it then"
+                        "{label} is lost (its lease ran out); it rejoins when it reports again, override it then"
                     )));
                 }
                 let draft = self.override_draft(robot, action, note)?;
-                detail =
-                    format!("robot {robot_id}: {} ({:.2}, {:.2})", draft.kind.as_str(), draft.target.x, draft.target.y);
+                detail = format!("{label}: {} ({:.2}, {:.2})", draft.kind.as_str(), draft.target.x, draft.target.y);
                 if let Some(task) = current {
                     let cause = said(format!("operator {}: {}", note.actor, detail));
                     changes.task_changes.push(operator_transition(
