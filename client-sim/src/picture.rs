@@ -93,9 +93,9 @@ impl Picture {
         }
     }
 
-    /// Saves as PNG.
+    /// Saves as PNG, whatever the file is called (`--png /dev/stdout`).
     pub fn save(&self, path: &Path) -> Result<(), image::ImageError> {
-        self.image.save(path)
+        self.image.save_with_format(path, image::ImageFormat::Png)
     }
 }
 

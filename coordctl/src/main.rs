@@ -122,6 +122,10 @@ const WATCH_PATIENCE: std::time::Duration = std::time::Duration::from_secs(60);
 /// views: through a restart of the executive, or the mission passing to
 /// another replica, it watches again (where the channel now points).
 async fn watch(api: &mut Missions, mission: u64, count: Option<usize>, out: &output::Output) -> anyhow::Result<()> {
+    if count == Some(0) {
+        // It printed one view and stopped: neither none nor every one.
+        return Err(Usage("--count must be at least 1 (leave it out to watch until stopped)".into()).into());
+    }
     let (mut seen, mut last) = (0, None);
     let mut heard = std::time::Instant::now();
     loop {

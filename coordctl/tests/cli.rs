@@ -185,6 +185,14 @@ async fn an_operator_lists_overrides_forbids_and_exports_the_map() {
     assert_eq!((picture.width(), picture.height()), (600, 200), "10 pixels per cell");
     let red = picture.pixels().filter(|p| p.0 == [220, 0, 0]).count();
     assert!(red > 100, "the forbidden region is outlined: {red} red pixels");
+    // --png writes a PNG whatever the file's name ("format could not be
+    // determined" before), and a full disk says so.
+    let unnamed = dir.path().join("map-export");
+    let wrote = coordctl(&url, Some(TOKEN), &["map", "export", &mission, "--png", unnamed.to_str().unwrap()]).await;
+    assert!(wrote.status.success(), "{}", String::from_utf8_lossy(&wrote.stderr));
+    assert!(std::fs::read(&unnamed).unwrap().starts_with(b"\x89PNG"));
+    let full = coordctl(&url, Some(TOKEN), &["map", "export", &mission, "--png", "/dev/full"]).await;
+    assert!(String::from_utf8_lossy(&full.stderr).contains("No space left on device"));
 
     // A big mission's whole map (9 million cells) is more than gRPC's
     // default 4 MiB message: coordctl still exports it.
@@ -207,6 +215,7 @@ async fn an_operator_lists_overrides_forbids_and_exports_the_map() {
     let twice = coordctl(&url, Some(TOKEN), &["mission", "pause", &mission]).await;
     assert_eq!(twice.status.code(), Some(4), "{}", String::from_utf8_lossy(&twice.stderr));
     assert_eq!(coordctl(&url, Some(TOKEN), &["override", &mission, "scout", "goto", "1"]).await.status.code(), Some(2));
+    assert_eq!(coordctl(&url, Some(TOKEN), &["watch", &mission, "--count", "0"]).await.status.code(), Some(2));
 
     // More events than one page of ListEvents (1 000): coordctl reads them all.
     let mut missions = exploration_proto::v1::missions_client::MissionsClient::with_interceptor(
