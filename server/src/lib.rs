@@ -142,7 +142,7 @@ pub enum ServeError {
     #[error("could not build the reflection service: {0}")]
     Reflection(#[from] tonic_reflection::server::Error),
     /// The transport failed.
-    #[error("transport error: {0}")]
+    #[error("{0}")]
     Transport(#[from] tonic::transport::Error),
     /// The HTTP listener cannot serve HTTPS with the TLS settings.
     #[error(transparent)]

@@ -366,6 +366,8 @@ fn a_file_that_is_not_a_database_is_named_in_one_line() {
         assert_eq!(said[0].matches(cause).count(), 1, "says why once: {stderr}");
         assert!(!stderr.contains("Caused by") && !stderr.contains("panicked"), "{stderr}");
     }
+    let (ok, stderr) = coordinator_exits(&[], std::path::Path::new(""));
+    assert!(!ok && stderr.contains("--db is empty: give a database file"), "{stderr}");
 }
 
 /// Defect 6: an empty or blank operator token silently ran open.

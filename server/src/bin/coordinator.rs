@@ -189,7 +189,7 @@ fn shedding(target_ms: u64, interval_ms: u64) -> anyhow::Result<Option<QueueDela
 }
 
 /// The replica settings the flags give, checked.
-fn replica_settings(args: &Args, tls: bool) -> anyhow::Result<Option<ReplicaSettings>> {
+fn replica_settings(args: &Args, tls: bool, bound: SocketAddr) -> anyhow::Result<Option<ReplicaSettings>> {
     let Some(id) = &args.replica_id else { return Ok(None) };
     anyhow::ensure!(
         !id.is_empty() && id.len() <= 128 && id.bytes().all(|b| b.is_ascii_graphic()),
@@ -207,7 +207,9 @@ fn replica_settings(args: &Args, tls: bool) -> anyhow::Result<Option<ReplicaSett
                  replica at",
                 args.listen
             );
-            format!("{}://{}", if tls { "https" } else { "http" }, args.listen)
+            // The address bound, not the one asked for: `--listen HOST:0`
+            // gets its port from the system.
+            format!("{}://{bound}", if tls { "https" } else { "http" })
         }
     };
     anyhow::ensure!(
@@ -255,11 +257,16 @@ async fn main() -> ExitCode {
 
 /// Checks the arguments, binds the listeners and serves until a signal.
 async fn serve(args: Args) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        !args.db.to_string().is_empty(),
+        "--db is empty: give a database file (created if missing) or a postgres:// URL"
+    );
     let listener = tokio::net::TcpListener::bind(args.listen)
         .await
         .with_context(|| format!("cannot listen on {}", args.listen))?;
     let tls = args.tls_cert.is_some();
-    let replica = replica_settings(&args, tls)?;
+    let bound = listener.local_addr().context("the address listened on")?;
+    let replica = replica_settings(&args, tls, bound)?;
     let mut config = Config::new(args.db);
     config.operator_token = args.operator_token;
     config.operator_tokens_file = args.operator_tokens;
