@@ -402,6 +402,12 @@ pub fn random_operator_token() -> Result<String, Error> {
     Ok(format!("opr_{}", random_secret()?))
 }
 
+/// A fresh token for a viewer (who may only read), told apart from an
+/// operator's by its prefix.
+pub fn random_viewer_token() -> Result<String, Error> {
+    Ok(format!("vwr_{}", random_secret()?))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -427,6 +433,8 @@ mod tests {
         let auth = Authenticator::with_operator_token(&a);
         assert_eq!(auth.caller(&metadata(Some(&a)), |_| None).unwrap(), operator("operator"));
         assert!(auth.caller(&metadata(Some(&b)), |_| None).is_err());
+        let viewer = random_viewer_token().unwrap();
+        assert!(viewer.starts_with("vwr_") && viewer.len() == 4 + 64 && robot_of(&viewer).is_none());
     }
 
     #[test]

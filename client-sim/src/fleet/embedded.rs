@@ -78,13 +78,20 @@ impl EmbeddedExecutive {
         let http = match view {
             Some(address) => {
                 let http = tokio::net::TcpListener::bind(address).await.map_err(|e| failed(&e))?;
-                let viewer = coordinator::auth::random_operator_token().map_err(|e| failed(&e))?;
+                let viewer = coordinator::auth::random_viewer_token().map_err(|e| failed(&e))?;
                 let tokens = dir.path().join("tokens");
                 let line = format!("viewer viewer {}\n", coordinator::auth::sha256_hex(&viewer));
                 std::fs::write(&tokens, line).map_err(|e| failed(&e))?;
                 config.operator_tokens_file = Some(tokens);
                 let url = http.local_addr().map_err(|e| failed(&e))?;
                 crate::errln!("live view: http://{url}/  (read-only token: {viewer})");
+                if !url.ip().is_loopback() {
+                    crate::errln!(
+                        "warning: the view is served in plaintext on {}, so its token crosses the network \
+                         unencrypted; bind it to 127.0.0.1 unless the network is yours",
+                        url.ip()
+                    );
+                }
                 Some(http)
             }
             None => None,
