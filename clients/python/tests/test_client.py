@@ -89,6 +89,8 @@ def test_malformed_grids_are_refused_before_anything_is_sent() -> None:
         patch_from_grid(np.zeros((2, 2)), 0, 0, unknown=np.zeros((3, 2), dtype=bool))
     with pytest.raises(ValueError, match="off the grid"):
         patch_from_grid(np.zeros((2, 2)), -1, 0)
+    with pytest.raises(ValueError, match="off the grid"):
+        patch_from_grid(np.zeros((2, 2)), 0, 2**40)
     with pytest.raises(ValueError, match="encoding"):
         patch_from_grid(np.zeros((2, 2)), 0, 0, encoding="percent")
     with pytest.raises(ValueError, match=r"cell \(1, 0\) holds 101"):

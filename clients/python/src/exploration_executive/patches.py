@@ -43,7 +43,8 @@ def patch_from_grid(
         default_mask = np.isnan(grid)
     if grid.ndim != 2 or grid.size == 0:
         raise ValueError(f"a patch is a non-empty 2-D grid, got shape {grid.shape}")
-    if x < 0 or y < 0:
+    # A cell index is 32 bits on the wire (the executive's grids are smaller still).
+    if not (0 <= x < 2**32 and 0 <= y < 2**32):
         raise ValueError(f"the patch's lower-left cell ({x}, {y}) lies off the grid")
     mask = default_mask if unknown is None else np.asarray(unknown, dtype=bool)
     if mask.shape != grid.shape:
