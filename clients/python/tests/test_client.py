@@ -37,6 +37,11 @@ def test_a_token_is_required_and_robots_get_their_own(coordinator: Coordinator) 
             as_robot.create_mission("not mine", frame(5, 5))
         assert denied.value.code() == grpc.StatusCode.PERMISSION_DENIED
         robot.close()
+    # What gRPC would refuse on every call, or read wrongly, is refused at once.
+    with pytest.raises(ValueError, match="printable ASCII"):
+        Executive(coordinator.address, "two\nlines")
+    with pytest.raises(ValueError, match="127.0.0.1:99999': expected host:port"):
+        Executive("127.0.0.1:99999")
 
 
 def test_numpy_grids_become_patches_of_the_fused_map(open_coordinator: Coordinator) -> None:

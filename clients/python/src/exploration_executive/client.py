@@ -97,6 +97,10 @@ class Executive:
         failover_s: float = 30.0,
         _current: str | None = None,
     ) -> None:
+        # Checked here: gRPC would refuse it on every call with a bare
+        # INTERNAL "Invalid metadata", after logging from C++.
+        if token is not None and not all("!" <= c <= "~" for c in token):
+            raise ValueError("token: a token is printable ASCII without spaces, as an HTTP header carries it")
         self._addresses = addresses_of(address)
         self._replicas = Replicas(self._addresses, root_certificates, token_sent=bool(token), current=_current)
         self._root_certificates = root_certificates

@@ -53,9 +53,13 @@ def owner_named_by(error: grpc.RpcError) -> str | None:
 def _target(address: str) -> tuple[str, str, bool]:
     """``(host:port, host, tls)`` of ``host:port``, ``http://…`` or ``https://…``."""
     parsed = urlparse(_url(address))
-    if parsed.scheme not in ("http", "https") or not parsed.hostname or not parsed.port:
+    try:
+        port = parsed.port
+    except ValueError:  # "Port out of range 0-65535", without the address
+        port = None
+    if parsed.scheme not in ("http", "https") or not parsed.hostname or not port:
         raise ValueError(f"address {address!r}: expected host:port, http://host:port or https://host:port")
-    return f"{parsed.hostname}:{parsed.port}", parsed.hostname, parsed.scheme == "https"
+    return f"{parsed.hostname}:{port}", parsed.hostname, parsed.scheme == "https"
 
 
 def _is_loopback(host: str) -> bool:
