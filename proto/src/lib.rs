@@ -138,6 +138,7 @@ impl tonic::service::Interceptor for Bearer {
 
 /// How the project's clients reach an executive: plaintext or TLS, with the
 /// CA to trust and, for mutual TLS, the client's own certificate.
+pub mod files;
 pub mod replicas;
 
 pub mod client {
@@ -171,7 +172,8 @@ pub mod client {
             key: Option<&std::path::Path>,
         ) -> std::io::Result<Self> {
             let read = |path: &std::path::Path| {
-                std::fs::read(path).map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))
+                crate::files::read_at_most(path, 1)
+                    .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))
             };
             let identity = match (cert, key) {
                 (Some(cert), Some(key)) => Some((read(cert)?, read(key)?)),

@@ -168,7 +168,7 @@ pub fn report(error: &(dyn std::error::Error + 'static)) -> String {
 }
 
 #[cfg(test)]
-mod report_tests {
+mod tests {
     use super::report;
 
     #[derive(Debug, thiserror::Error)]

@@ -31,7 +31,8 @@ pub mod cpu_limit;
 pub mod domain;
 pub mod error;
 pub mod executive;
-pub mod files;
+/// Files an operator names, read up to a limit (shared with the clients).
+pub use exploration_proto::files;
 pub mod http;
 pub mod metrics;
 pub mod run_to_end;
