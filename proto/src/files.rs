@@ -22,6 +22,12 @@ pub fn read_at_most(path: &Path, limit_mib: u64) -> io::Result<Vec<u8>> {
     Ok(bytes)
 }
 
+/// A PEM file (certificate, key, CA) of at most 1 MiB; its errors name it
+/// ("cert.pem: No such file or directory"), as the caller reads several.
+pub fn read_pem(path: &Path) -> io::Result<Vec<u8>> {
+    read_at_most(path, 1).map_err(|e| io::Error::new(e.kind(), format!("{}: {e}", path.display())))
+}
+
 /// [`read_at_most`] for a text file; `InvalidData` if it is not UTF-8.
 pub fn read_text_at_most(path: &Path, limit_mib: u64) -> io::Result<String> {
     String::from_utf8(read_at_most(path, limit_mib)?).map_err(|e| {

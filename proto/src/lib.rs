@@ -171,10 +171,7 @@ pub mod client {
             cert: Option<&std::path::Path>,
             key: Option<&std::path::Path>,
         ) -> std::io::Result<Self> {
-            let read = |path: &std::path::Path| {
-                crate::files::read_at_most(path, 1)
-                    .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))
-            };
+            let read = crate::files::read_pem;
             let identity = match (cert, key) {
                 (Some(cert), Some(key)) => Some((read(cert)?, read(key)?)),
                 (None, None) => None,

@@ -114,9 +114,7 @@ impl std::fmt::Debug for TlsConfig {
 impl TlsConfig {
     /// Reads the PEM files.
     pub fn from_files(cert: &Path, key: &Path, client_ca: Option<&Path>) -> std::io::Result<Self> {
-        let read = |path: &Path| {
-            files::read_at_most(path, 1).map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))
-        };
+        let read = files::read_pem;
         Ok(Self { cert_pem: read(cert)?, key_pem: read(key)?, client_ca_pem: client_ca.map(read).transpose()? })
     }
 }
@@ -309,10 +307,7 @@ pub async fn run_with(
         let stop = streams_end.clone().cancelled_owned();
         // Probes need a few connections; whoever else reaches this port
         // must not hold the descriptors gRPC needs.
-        let limits = ConnectionLimits {
-            drain_grace: config.connections.drain_grace,
-            ..ConnectionLimits::side_listener(HEALTH_CONNECTIONS)
-        };
+        let limits = ConnectionLimits::side_listener(HEALTH_CONNECTIONS);
         let incoming = connections::Incoming::new("health", listener, limits);
         tokio::spawn(
             tonic::transport::Server::builder()
