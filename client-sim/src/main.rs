@@ -183,7 +183,7 @@ struct ReportArgs {
     #[arg(long, default_value = "docs/results.md")]
     out: PathBuf,
     /// Folder holding each experiment's results folder.
-    #[arg(long, default_value = "docs/results")]
+    #[arg(long, default_value = client_sim::report::DEFAULT_RESULTS)]
     results: PathBuf,
     /// The experiment files, in the order of the report.
     configs: Vec<PathBuf>,
@@ -581,7 +581,7 @@ async fn run(args: RunArgs) -> anyhow::Result<()> {
 
 async fn experiment(args: ExperimentArgs) -> anyhow::Result<()> {
     let experiment = Experiment::load(&args.config)?;
-    let out = args.out.unwrap_or_else(|| PathBuf::from("docs/results").join(&experiment.name));
+    let out = args.out.unwrap_or_else(|| PathBuf::from(client_sim::report::DEFAULT_RESULTS).join(&experiment.name));
     if args.replot {
         anyhow::ensure!(out.join("runs.csv").exists(), "--replot: no runs in {} to plot", out.display());
         client_sim::runs::summarize(&out)?;
@@ -618,7 +618,7 @@ fn bound(args: BoundArgs) -> anyhow::Result<()> {
             b.steps()
         )?;
     }
-    let dir = args.runs.unwrap_or_else(|| PathBuf::from("docs/results").join(&experiment.name));
+    let dir = args.runs.unwrap_or_else(|| PathBuf::from(client_sim::report::DEFAULT_RESULTS).join(&experiment.name));
     let runs = client_sim::runs::read_runs(&dir)?;
     if runs.is_empty() {
         errln!("no runs in {} to hold against the bounds", dir.display());
@@ -642,7 +642,7 @@ fn report(args: ReportArgs) -> anyhow::Result<()> {
             Ok((e, dir))
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    client_sim::report::write_report(&experiments, &args.out)?;
+    client_sim::report::write_report(&experiments, &args.results, &args.out)?;
     errln!("wrote {}", args.out.display());
     Ok(())
 }

@@ -50,9 +50,16 @@ async fn the_ci_experiment_runs_end_to_end_and_resumes() {
         assert!(cell.bound.steps() > 0 && steps >= cell.bound.steps(), "{steps} steps against {:?}", cell.bound);
     }
     let report = out.path().join("results.md");
-    client_sim::report::write_report(&[(experiment, out.path().to_owned())], &report).unwrap();
+    client_sim::report::write_report(&[(experiment, out.path().to_owned())], out.path(), &report).unwrap();
     let text = std::fs::read_to_string(&report).unwrap();
     assert!(text.contains("**Claim.**") && text.contains("| robots | nearest | burgard |"), "{text}");
+    // It says where its runs are and how to make them again, as they were
+    // made here, not as the repository's own report does.
+    let results = out.path().display();
+    assert!(text.contains(&format!("from the runs in `{results}/`")), "{text}");
+    assert!(text.contains(&format!("--out {results}/$e")), "{text}");
+    assert!(text.contains(&format!("report --out {} --results {results} ", report.display())), "{text}");
+    assert!(!text.contains("docs/results"), "{text}");
 }
 
 /// An experiment not run yet is reported as such, with no time spent (an
@@ -62,7 +69,7 @@ fn an_experiment_without_runs_is_reported_with_none_done() {
     let out = tempfile::tempdir().unwrap();
     let experiment = client_sim::experiment::Experiment::load(&workspace().join("experiments/ci-small.toml")).unwrap();
     let report = out.path().join("results.md");
-    client_sim::report::write_report(&[(experiment, out.path().to_owned())], &report).unwrap();
+    client_sim::report::write_report(&[(experiment, out.path().to_owned())], out.path(), &report).unwrap();
     let text = std::fs::read_to_string(&report).unwrap();
     assert!(text.contains("Runs: 0 done"), "{text}");
     assert!(text.contains(", 0 s of run time in all") && !text.contains("-0 s"), "{text}");
