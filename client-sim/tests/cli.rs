@@ -119,3 +119,30 @@ fn a_reader_that_leaves_early_is_no_failure() {
         assert!(status.success(), "--json {json}: {status}");
     }
 }
+
+/// A call the executive could not answer is one line a person can read: the
+/// call, the code, the message and the transport's root cause, not tonic's
+/// debugging dump ("code: 'The service is currently unavailable', …,
+/// source: tonic::transport::Error(Transport, ConnectError(…))").
+#[test]
+fn an_unreachable_executive_is_reported_in_one_readable_line() {
+    // A port nobody listens on: bound, then let go.
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let map = Path::new(env!("CARGO_MANIFEST_DIR")).join("../maps/nav2_depot.yaml");
+    let output = Command::new(env!("CARGO_BIN_EXE_fleet-sim"))
+        .args(["run", "--server", &format!("http://127.0.0.1:{port}"), "--retry-for", "0", "--map"])
+        .arg(&map)
+        .output()
+        .unwrap();
+    assert_eq!(output.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        stderr.starts_with(
+            "fleet-sim: the run failed: CreateMission: the executive stayed unreachable for 0ns: Unavailable: "
+        ),
+        "{stderr}"
+    );
+    assert!(stderr.contains("Connection refused"), "{stderr}");
+    assert!(!stderr.contains("code: '") && !stderr.contains("source:") && !stderr.contains("robot failed"), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+}

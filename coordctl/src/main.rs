@@ -45,20 +45,7 @@ async fn main() -> ExitCode {
         Err(e) if StdoutError::is_reader_gone(&e) => ExitCode::SUCCESS,
         Err(e) => {
             match e.downcast_ref::<tonic::Status>() {
-                Some(status) => {
-                    // A transport failure's reason (refused, reset, a bad
-                    // certificate) is the root of the status's source, not
-                    // in its message.
-                    let reason = std::iter::successors(std::error::Error::source(status), |e| e.source())
-                        .last()
-                        .map(ToString::to_string);
-                    match reason {
-                        Some(reason) if !status.message().contains(&reason) => {
-                            errln!("coordctl: {:?}: {}: {reason}", status.code(), status.message())
-                        }
-                        _ => errln!("coordctl: {:?}: {}", status.code(), status.message()),
-                    }
-                }
+                Some(status) => errln!("coordctl: {}", exploration_proto::client::status_line(status)),
                 None => errln!("coordctl: {}", console::report(e.as_ref())),
             }
             ExitCode::from(exit_code(&e))

@@ -154,15 +154,22 @@ pub fn overloaded_for(message: String, wait: std::time::Duration) -> tonic::Stat
 /// errors name their cause in their own message, and so do sqlx's and
 /// std's, so the usual chain would say the same thing three times.)
 pub fn report(error: &(dyn std::error::Error + 'static)) -> String {
-    let mut line = error.to_string();
-    let mut cause = error.source();
+    let mut line = String::new();
+    let mut cause = Some(error);
     while let Some(error) = cause {
-        let said = error.to_string();
+        // A status says its code and message, and its own root cause, on
+        // one line; its Display is a debugging dump.
+        let (said, rest) = match error.downcast_ref::<tonic::Status>() {
+            Some(status) => (exploration_proto::client::status_line(status), None),
+            None => (error.to_string(), error.source()),
+        };
         if !line.contains(&said) {
-            line.push_str(": ");
+            if !line.is_empty() {
+                line.push_str(": ");
+            }
             line.push_str(&said);
         }
-        cause = error.source();
+        cause = rest;
     }
     line
 }
@@ -189,5 +196,15 @@ mod tests {
         assert_eq!(report(&repeated), "could not open the store x.db: database error: file is not a database");
         let terse = Terse(std::io::Error::other("Resource busy"));
         assert_eq!(report(&terse), "lock file held: Resource busy");
+    }
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("CreateMission")]
+    struct Call(#[source] tonic::Status);
+
+    #[test]
+    fn a_status_in_the_chain_is_its_code_and_message_not_its_debugging_dump() {
+        let refused = Call(tonic::Status::invalid_argument("unknown policy \"nosuch\""));
+        assert_eq!(report(&refused), "CreateMission: InvalidArgument: unknown policy \"nosuch\"");
     }
 }

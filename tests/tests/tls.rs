@@ -168,3 +168,42 @@ async fn the_live_view_speaks_https_where_the_executive_has_tls() {
     assert!(!String::from_utf8_lossy(&answer).contains("HTTP/1.1"), "no plaintext HTTP answer on the TLS port");
     exec.stop().await;
 }
+
+/// A user who mixes up TLS and plaintext, or trusts the wrong CA, is told
+/// what to change, not only what the transport saw ("frame with invalid
+/// size" is all h2 can say of a TLS record).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn coordctl_says_what_to_change_when_tls_and_plaintext_are_mixed_up() {
+    let dir = tempfile::tempdir().unwrap();
+    let pki = Pki::new(dir.path());
+    let mut config = coordinator::Config::new(dir.path().join("tls.db"));
+    config.tls = Some(coordinator::TlsConfig::from_files(&pki.server_cert, &pki.server_key, None).unwrap());
+    config.operator_token = Some(TOKEN.into());
+    let tls_exec = TestExecutive::start_with(config).await;
+    let plain_exec = TestExecutive::start(dir.path().join("plain.db")).await;
+
+    let coordctl = |url: String, ca: Option<&std::path::Path>| {
+        let mut command = Command::new(common::binary("coordctl"));
+        command.args(["--server", &url, "--token", TOKEN]);
+        if let Some(ca) = ca {
+            command.arg("--tls-ca").arg(ca);
+        }
+        let output = command.arg("missions").output();
+        tokio::task::spawn_blocking(move || {
+            let output = output.unwrap();
+            assert!(!output.status.success());
+            String::from_utf8_lossy(&output.stderr).into_owned()
+        })
+    };
+    let plaintext_to_tls = coordctl(format!("http://{}", tls_exec.address), None).await.unwrap();
+    assert!(plaintext_to_tls.contains("if the executive there serves TLS, use https://"), "{plaintext_to_tls}");
+    let tls_to_plaintext = coordctl(format!("https://{}", plain_exec.address), Some(&pki.ca)).await.unwrap();
+    assert!(tls_to_plaintext.contains("does not serve TLS: use http://"), "{tls_to_plaintext}");
+    let wrong_ca = coordctl(format!("https://{}", tls_exec.address), Some(&pki.other_ca)).await.unwrap();
+    assert!(wrong_ca.contains("not signed by the CA given with --tls-ca"), "{wrong_ca}");
+    for said in [&plaintext_to_tls, &tls_to_plaintext, &wrong_ca] {
+        assert_eq!(said.lines().count(), 1, "one line: {said}");
+    }
+    tls_exec.stop().await;
+    plain_exec.stop().await;
+}

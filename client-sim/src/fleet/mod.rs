@@ -151,8 +151,12 @@ pub enum SimError {
     /// A robot gave up.
     #[error("robot failed: {0}")]
     Robot(#[from] RobotError),
+    /// One of the fleet's own calls (creating the mission, reading its
+    /// policy) failed for good.
+    #[error("{0}")]
+    Call(RobotError),
     /// The executive refused a request.
-    #[error("executive refused {what}: {status}")]
+    #[error("executive refused {what}: {}", exploration_proto::client::status_line(.status))]
     Rpc {
         /// Which request.
         what: &'static str,
@@ -269,7 +273,7 @@ async fn ask<T, Fut>(
 where
     Fut: std::future::Future<Output = Result<tonic::Response<T>, Status>>,
 {
-    Ok(crate::robot::retry(what, budget, || call(missions.clone())).await?)
+    crate::robot::retry(what, budget, || call(missions.clone())).await.map_err(SimError::Call)
 }
 
 /// The executive's mission API as the fleet holds it: a lazy channel with

@@ -24,6 +24,7 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
+use exploration_proto::client::status_line;
 use exploration_proto::replicas::Replicas;
 use tokio::sync::watch;
 use tonic::Status;
@@ -65,7 +66,7 @@ pub struct RobotModel {
 #[derive(Debug, thiserror::Error)]
 pub enum RobotError {
     /// The executive refused a request for good.
-    #[error("{what}: {status}")]
+    #[error("{what}: {}", status_line(.status))]
     Rpc {
         /// Which request.
         what: &'static str,
@@ -73,7 +74,7 @@ pub enum RobotError {
         status: Status,
     },
     /// The executive stayed unreachable past the retry budget.
-    #[error("{what}: the executive stayed unreachable for {budget:?}: {status}")]
+    #[error("{what}: the executive stayed unreachable for {budget:?}: {}", status_line(.status))]
     Unreachable {
         /// Which request.
         what: &'static str,
