@@ -65,6 +65,8 @@ fn bad_arguments_fail_with_a_message() {
         ("--interference", "NaN", "interference NaN"),
         ("--comm-range", "NaN", "communication range \"NaN\""),
         ("--max-steps", "0", "--max-steps must be at least 1"),
+        ("--start", "NaN,3", "--start \"NaN,3\": \"NaN\" is not a finite number of metres"),
+        ("--start", "3,abc", "--start \"3,abc\": \"abc\" is not a finite number of metres"),
     ] {
         let map = Path::new(env!("CARGO_MANIFEST_DIR")).join("../maps/nav2_depot.yaml");
         let output = Command::new(env!("CARGO_BIN_EXE_fleet-sim"))
@@ -75,6 +77,17 @@ fn bad_arguments_fail_with_a_message() {
         let stderr = String::from_utf8_lossy(&output.stderr);
         assert_eq!(output.status.code(), Some(1), "{flag} {value}: {stderr}");
         assert!(stderr.contains(said), "{flag} {value}: {stderr}");
+    }
+
+    for size in ["20xabc", "infx20"] {
+        let output = Command::new(env!("CARGO_BIN_EXE_fleet-sim"))
+            .args(["run", "--world", "office", "--size", size])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(1), "{size}: {stderr}");
+        assert!(stderr.starts_with(&format!("fleet-sim: --size {size:?}: ")), "{size}: {stderr}");
+        assert!(stderr.contains("is not a finite number of metres"), "{size}: {stderr}");
     }
 
     // Load rates no robot sends (1e9 Hz never finished; NaN sent at 1e-3 Hz).
