@@ -75,6 +75,33 @@ fn an_experiment_without_runs_is_reported_with_none_done() {
     assert!(text.contains(", 0 s of run time in all") && !text.contains("-0 s"), "{text}");
 }
 
+/// What would panic a run (a negative or NaN time limit), never finish
+/// making the list of runs (a hundred billion seeds) or fail every run alike
+/// (a team of no robots) is refused when the file is read, naming the
+/// field; every experiment of the repository still loads.
+#[test]
+fn experiment_files_that_cannot_run_are_refused_when_read() {
+    let base = std::fs::read_to_string(workspace().join("experiments/ci-small.toml")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    for (from, to, said) in [
+        ("time_limit_s = 120", "time_limit_s = -1", "time_limit_s -1: give seconds above 0"),
+        ("time_limit_s = 120", "time_limit_s = nan", "time_limit_s NaN: give seconds above 0"),
+        ("time_limit_s = 120", "time_limit_s = 1e6", "time_limit_s 1000000: give seconds above 0, at most 86400"),
+        ("seeds = 2", "seeds = 100000000000", "400000000000 runs (seeds × worlds × ranges × team sizes × policies)"),
+        ("robots = [1, 2]", "robots = [1, 0]", "robots: a team has at least one robot"),
+    ] {
+        assert!(base.contains(from), "{from}");
+        let config = dir.path().join("e.toml");
+        std::fs::write(&config, base.replace(from, to)).unwrap();
+        let refused = client_sim::experiment::Experiment::load(&config).map(|_| ()).unwrap_err().to_string();
+        assert!(refused.contains(said), "{to}: {refused}");
+    }
+    for entry in std::fs::read_dir(workspace().join("experiments")).unwrap() {
+        let path = entry.unwrap().path();
+        client_sim::experiment::Experiment::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn runs_that_hang_or_fail_are_recorded_and_the_rest_go_on() {
     let dir = tempfile::tempdir().unwrap();

@@ -9,6 +9,7 @@ use serde::Deserialize;
 
 use crate::fleet::{CommRange, DEFAULT_MODEL, Interference};
 use crate::generate::Generator;
+use exploration::math::ShortNumber;
 
 /// An experiment, as its TOML file describes it.
 #[derive(Debug, Clone, Deserialize)]
@@ -57,6 +58,13 @@ pub struct Experiment {
     #[serde(default)]
     pub tables: Vec<String>,
 }
+
+/// Longest a run may be given: a day.
+const MAX_TIME_LIMIT_S: f64 = 86_400.0;
+
+/// Most runs in one experiment: their list is made before the first starts,
+/// and `seeds = 100000000000` made one until memory ran out.
+const MAX_RUNS: u64 = 1_000_000;
 
 fn default_time_limit() -> f64 {
     600.0
@@ -269,8 +277,31 @@ impl Experiment {
         let experiment: Self = toml::from_str(&text)
             .map_err(|e| ExperimentError::Config { path: path.to_owned(), message: e.to_string() })?;
         let bad = |message: String| ExperimentError::Config { path: path.to_owned(), message };
-        if experiment.seeds == 0 || experiment.robots.is_empty() || experiment.policies.is_empty() {
-            return Err(bad("seeds, robots and policies must not be empty".into()));
+        if experiment.seeds == 0
+            || experiment.worlds.is_empty()
+            || experiment.robots.is_empty()
+            || experiment.policies.is_empty()
+        {
+            return Err(bad("seeds, worlds, robots and policies must not be empty".into()));
+        }
+        if experiment.robots.contains(&0) {
+            return Err(bad("robots: a team has at least one robot".into()));
+        }
+        let time_limit = experiment.time_limit_s;
+        if !(time_limit > 0.0 && time_limit <= MAX_TIME_LIMIT_S) {
+            return Err(bad(format!(
+                "time_limit_s {}: give seconds above 0, at most {MAX_TIME_LIMIT_S} (a day)",
+                ShortNumber(time_limit)
+            )));
+        }
+        let ranges = experiment.comm_ranges.len().max(1) as u128;
+        let runs = [experiment.worlds.len(), experiment.robots.len(), experiment.policies.len()]
+            .iter()
+            .fold(u128::from(experiment.seeds) * ranges, |n, &k| n.saturating_mul(k as u128));
+        if runs > MAX_RUNS as u128 {
+            return Err(bad(format!(
+                "{runs} runs (seeds × worlds × ranges × team sizes × policies); an experiment has at most {MAX_RUNS}"
+            )));
         }
         for w in &experiment.worlds {
             match (&w.map, &w.generator) {
