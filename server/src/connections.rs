@@ -18,7 +18,7 @@ use std::net::SocketAddr;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
-use std::task::{Context, Poll};
+use std::task::{Context, Poll, ready};
 use std::time::Duration;
 
 use futures::task::AtomicWaker;
@@ -230,12 +230,20 @@ pub struct Incoming {
     open: Arc<AtomicUsize>,
     /// When a refusal was last logged (one line per second at most).
     refused_logged: Option<Instant>,
+    /// Armed when accepting failed for want of a resource (descriptors,
+    /// memory): no accept is tried before it fires.
+    backoff: Option<Pin<Box<Sleep>>>,
 }
+
+/// How long accepting pauses after it failed for want of a resource. The
+/// connection waiting in the backlog makes the listener ready again at once,
+/// so retrying without a pause spins a core until a descriptor is freed.
+const ACCEPT_BACKOFF: Duration = Duration::from_millis(100);
 
 impl Incoming {
     /// Accepts on `listener` (called `name` in the log) within `limits`.
     pub fn new(name: &'static str, listener: TcpListener, limits: ConnectionLimits) -> Self {
-        Self { name, listener, limits, open: Arc::new(AtomicUsize::new(0)), refused_logged: None }
+        Self { name, listener, limits, open: Arc::new(AtomicUsize::new(0)), refused_logged: None, backoff: None }
     }
 
     /// The address it listens on.
@@ -268,42 +276,65 @@ impl Incoming {
 impl futures::Stream for Incoming {
     type Item = io::Result<Tracked>;
 
+    /// Never yields an error: a connection that failed before it was
+    /// accepted is skipped, and a want of descriptors or memory is logged and
+    /// waited out here (tonic would retry at once).
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
         loop {
-            match self.listener.poll_accept(cx) {
-                Poll::Ready(Ok((stream, peer))) => {
+            if let Some(backoff) = self.backoff.as_mut() {
+                ready!(backoff.as_mut().poll(cx));
+                self.backoff = None;
+            }
+            match ready!(self.listener.poll_accept(cx)) {
+                Ok((stream, peer)) => {
                     if let Some(tracked) = self.admit(stream, peer) {
                         return Poll::Ready(Some(Ok(tracked)));
                     }
                 }
-                // Accept errors (a full descriptor table, a reset before
-                // accept) are passing: the server logs them and goes on.
-                Poll::Ready(Err(e)) => return Poll::Ready(Some(Err(e))),
-                Poll::Pending => return Poll::Pending,
+                Err(e) if is_connection_error(&e) => {
+                    tracing::debug!(listener = self.name, error = %e, "a connection failed before it was accepted");
+                }
+                Err(e) => {
+                    if self.refused_logged.is_none_or(|at| at.elapsed() >= Duration::from_secs(1)) {
+                        tracing::warn!(
+                            listener = self.name,
+                            error = %e,
+                            "cannot accept connections (raise the open-files limit, `ulimit -n`, or lower --max-connections); retrying"
+                        );
+                        self.refused_logged = Some(Instant::now());
+                    }
+                    self.backoff = Some(Box::pin(tokio::time::sleep(ACCEPT_BACKOFF)));
+                }
             }
         }
     }
 }
 
-/// The HTTP listener's way in (axum's): accept errors (descriptors run out,
-/// a peer gone before it was accepted) are waited out.
+/// Whether an accept failed for the one connection only (its peer gave up
+/// or reset before it was taken), rather than for the listener's process.
+fn is_connection_error(e: &io::Error) -> bool {
+    matches!(
+        e.kind(),
+        io::ErrorKind::ConnectionAborted
+            | io::ErrorKind::ConnectionReset
+            | io::ErrorKind::ConnectionRefused
+            | io::ErrorKind::Interrupted
+    )
+}
+
+/// The HTTP listener's way in (axum's).
 impl axum::serve::Listener for Incoming {
     type Io = Tracked;
     type Addr = SocketAddr;
 
     async fn accept(&mut self) -> (Tracked, SocketAddr) {
-        loop {
-            match futures::StreamExt::next(self).await {
-                Some(Ok(tracked)) => {
-                    let peer = tracked.peer;
-                    return (tracked, peer);
-                }
-                Some(Err(e)) => {
-                    tracing::debug!(listener = self.name, error = %e, "accept failed");
-                    tokio::time::sleep(Duration::from_millis(50)).await;
-                }
-                None => return std::future::pending().await,
+        // The stream yields no errors, and ends never.
+        match futures::StreamExt::next(self).await {
+            Some(Ok(tracked)) => {
+                let peer = tracked.peer;
+                (tracked, peer)
             }
+            Some(Err(_)) | None => std::future::pending().await,
         }
     }
 

@@ -157,3 +157,59 @@ async fn the_health_listener_holds_at_most_its_budget() {
     assert!(stopping.elapsed() < grace + Duration::from_secs(5), "stopped in {:?}", stopping.elapsed());
     drop(held);
 }
+
+/// CPU time the process `pid` has used, in clock ticks (Linux).
+fn cpu_ticks(pid: u32) -> u64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
+    // The fields after the command's closing parenthesis; utime and stime
+    // are the 14th and 15th of the whole line.
+    let after = stat.rsplit_once(')').unwrap().1;
+    let fields: Vec<&str> = after.split_whitespace().collect();
+    fields[11].parse::<u64>().unwrap() + fields[12].parse::<u64>().unwrap()
+}
+
+/// Out of descriptors, accepting fails while connections wait in the
+/// backlog, and tonic tries again at once: the executive spun a core (about
+/// 100 ticks a second) without a word. It now pauses, says why once a
+/// second, and takes connections again when descriptors are freed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn out_of_descriptors_the_executive_waits_quietly_and_recovers() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let log = std::fs::File::create(dir.path().join("log")).unwrap();
+    let mut coordinator = std::process::Command::new("sh")
+        .arg("-c")
+        .arg(r#"ulimit -n 64 && exec "$0" "$@""#)
+        .arg(common::binary("coordinator"))
+        .args(["--listen", &format!("127.0.0.1:{port}"), "--health-listen", "127.0.0.1:0"])
+        .arg("--db")
+        .arg(dir.path().join("fds.db"))
+        .env("RUST_LOG", "warn")
+        .stdout(log)
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let url = format!("http://127.0.0.1:{port}");
+    common::wait_until_serving(&url, Duration::from_secs(30)).await;
+    let address: SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
+    // More connections than the process has descriptors: the last ones
+    // wait in the backlog.
+    let mut held = silent(address, 100).await;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let before = cpu_ticks(coordinator.id());
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let spent = cpu_ticks(coordinator.id()) - before;
+    let said = std::fs::read_to_string(dir.path().join("log")).unwrap();
+    held.clear();
+    let recovered = tokio::time::timeout(Duration::from_secs(20), async {
+        while !answers_a_probe(address).await {
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    })
+    .await;
+    coordinator.kill().unwrap();
+    coordinator.wait().unwrap();
+    assert!(spent < 40, "{spent} ticks of CPU in 2 s while out of descriptors");
+    assert!(said.contains("cannot accept connections") && said.contains("Too many open files"), "{said}");
+    assert!(recovered.is_ok(), "no answer after the connections were closed");
+}
