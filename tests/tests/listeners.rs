@@ -158,6 +158,46 @@ async fn the_health_listener_holds_at_most_its_budget() {
     drop(held);
 }
 
+/// The executive's binary started with `ulimit LIMIT` (soft and hard with
+/// `-n`, soft alone with `-Sn`), logging to `dir`/log, once it serves.
+async fn under_open_files_limit(limit: &str, dir: &std::path::Path) -> (std::process::Child, SocketAddr) {
+    let port = common::free_port();
+    let log = std::fs::File::create(dir.join("log")).unwrap();
+    let coordinator = std::process::Command::new("sh")
+        .arg("-c")
+        .arg(format!(r#"ulimit {limit} && exec "$0" "$@""#))
+        .arg(common::binary("coordinator"))
+        .args(["--listen", &format!("127.0.0.1:{port}"), "--health-listen", "127.0.0.1:0"])
+        .arg("--db")
+        .arg(dir.join("fds.db"))
+        .env("RUST_LOG", "warn,coordinator=info")
+        .env("NO_COLOR", "1")
+        .stdout(log)
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    common::wait_until_serving(&format!("http://127.0.0.1:{port}"), Duration::from_secs(30)).await;
+    (coordinator, format!("127.0.0.1:{port}").parse().unwrap())
+}
+
+/// A soft open-files limit of 64 (the usual soft limit is 1 024, a
+/// thousand robots' connections) is raised to what the connection limits
+/// need when the hard limit allows it: a hundred connections are held and
+/// the next is answered.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_low_soft_open_files_limit_is_raised_for_the_connections_allowed() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut coordinator, address) = under_open_files_limit("-Sn 64", dir.path()).await;
+    let held = silent(address, 100).await;
+    let answered = answers_a_probe(address).await;
+    drop(held);
+    coordinator.kill().unwrap();
+    coordinator.wait().unwrap();
+    let said = std::fs::read_to_string(dir.path().join("log")).unwrap();
+    assert!(said.contains("open-files limit raised") && said.contains("from=64"), "{said}");
+    assert!(answered && !said.contains("cannot accept"), "{said}");
+}
+
 /// CPU time the process `pid` has used, in clock ticks (Linux).
 fn cpu_ticks(pid: u32) -> u64 {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
@@ -175,23 +215,7 @@ fn cpu_ticks(pid: u32) -> u64 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn out_of_descriptors_the_executive_waits_quietly_and_recovers() {
     let dir = tempfile::tempdir().unwrap();
-    let port = common::free_port();
-    let log = std::fs::File::create(dir.path().join("log")).unwrap();
-    let mut coordinator = std::process::Command::new("sh")
-        .arg("-c")
-        .arg(r#"ulimit -n 64 && exec "$0" "$@""#)
-        .arg(common::binary("coordinator"))
-        .args(["--listen", &format!("127.0.0.1:{port}"), "--health-listen", "127.0.0.1:0"])
-        .arg("--db")
-        .arg(dir.path().join("fds.db"))
-        .env("RUST_LOG", "warn")
-        .stdout(log)
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let url = format!("http://127.0.0.1:{port}");
-    common::wait_until_serving(&url, Duration::from_secs(30)).await;
-    let address: SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
+    let (mut coordinator, address) = under_open_files_limit("-n 64", dir.path()).await;
     // More connections than the process has descriptors: the last ones
     // wait in the backlog.
     let mut held = silent(address, 100).await;
@@ -200,6 +224,7 @@ async fn out_of_descriptors_the_executive_waits_quietly_and_recovers() {
     tokio::time::sleep(Duration::from_secs(2)).await;
     let spent = cpu_ticks(coordinator.id()) - before;
     let said = std::fs::read_to_string(dir.path().join("log")).unwrap();
+    assert!(said.contains("the open-files limit is below what the connection limits need"), "{said}");
     held.clear();
     let recovered = tokio::time::timeout(Duration::from_secs(20), async {
         while !answers_a_probe(address).await {
