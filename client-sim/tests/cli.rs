@@ -95,6 +95,7 @@ fn bad_arguments_fail_with_a_message() {
         (["--heartbeat-hz", "NaN"], "--heartbeat-hz NaN (× --rate-scale 1): a robot's rate must lie in [0, 100]"),
         (["--rate-scale", "1e9"], "--heartbeat-hz 2 (× --rate-scale 1e9)"),
         (["--capacity-callers", "0"], "--capacity-callers must be at least 1"),
+        (["--missions", "1000000"], "--missions 1000000 × --robots 50: at most 100000 robots in all"),
     ] {
         let output = Command::new(env!("CARGO_BIN_EXE_fleet-sim")).arg("load").args(args).output().unwrap();
         let stderr = String::from_utf8_lossy(&output.stderr);

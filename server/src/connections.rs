@@ -220,6 +220,37 @@ impl<S: AsyncWrite + Unpin> AsyncWrite for Tracked<S> {
     }
 }
 
+/// Descriptors the executive needs beside its connections: the database
+/// and its journal, the listeners, the runtime, the log.
+const DESCRIPTORS_BESIDE_CONNECTIONS: u64 = 256;
+
+/// Raises this process's soft open-files limit (often 1 024) towards what
+/// `connections` need, as far as the hard limit allows, and says so; warns
+/// when the hard limit is too low. Past the limit, connections wait in the
+/// backlog. For binaries: the limit is the whole process's.
+pub fn open_files_for(connections: usize) {
+    use rustix::process::{Resource, getrlimit, setrlimit};
+    let needed = connections as u64 + DESCRIPTORS_BESIDE_CONNECTIONS;
+    let limit = getrlimit(Resource::Nofile);
+    let Some(soft) = limit.current.filter(|&soft| soft < needed) else { return };
+    let raised = limit.maximum.map_or(needed, |hard| hard.min(needed));
+    if raised > soft {
+        match setrlimit(Resource::Nofile, rustix::process::Rlimit { current: Some(raised), ..limit }) {
+            Ok(()) => tracing::info!(from = soft, to = raised, "open-files limit raised for the connections allowed"),
+            Err(e) => tracing::warn!(error = %e, "could not raise the open-files limit"),
+        }
+    }
+    let now = getrlimit(Resource::Nofile).current.unwrap_or(u64::MAX);
+    if now < needed {
+        tracing::warn!(
+            limit = now,
+            needed,
+            "the open-files limit is below what the connections allowed need: those beyond it wait until \
+             others close (raise the hard limit: `ulimit -Hn`, systemd's LimitNOFILE)"
+        );
+    }
+}
+
 /// Accepted connections, up to the limit.
 #[derive(Debug)]
 pub struct Incoming {

@@ -224,7 +224,7 @@ async fn out_of_descriptors_the_executive_waits_quietly_and_recovers() {
     tokio::time::sleep(Duration::from_secs(2)).await;
     let spent = cpu_ticks(coordinator.id()) - before;
     let said = std::fs::read_to_string(dir.path().join("log")).unwrap();
-    assert!(said.contains("the open-files limit is below what the connection limits need"), "{said}");
+    assert!(said.contains("the open-files limit is below what the connections allowed need"), "{said}");
     held.clear();
     let recovered = tokio::time::timeout(Duration::from_secs(20), async {
         while !answers_a_probe(address).await {

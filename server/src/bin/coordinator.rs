@@ -289,7 +289,9 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         idle_timeout: Duration::from_secs_f64(args.idle_timeout),
         ..ConnectionLimits::default()
     };
-    open_files_for(args.max_connections + args.http_max_connections + coordinator::HEALTH_CONNECTIONS);
+    coordinator::connections::open_files_for(
+        args.max_connections + args.http_max_connections + coordinator::HEALTH_CONNECTIONS,
+    );
     config.shedding = shedding(args.shed_target_ms, args.shed_interval_ms)?;
     config.durability = match args.durability {
         DurabilityArg::Full => Durability::Full,
@@ -335,36 +337,6 @@ async fn serve(args: Args) -> anyhow::Result<()> {
     };
     let listeners = coordinator::Listeners { grpc: listener, http, health };
     coordinator::run_with(listeners, shutdown_signal(), config).await.context("the executive failed")
-}
-
-/// Descriptors the executive needs beside its connections: the database
-/// and its journal, the listeners, the runtime, the log.
-const DESCRIPTORS_BESIDE_CONNECTIONS: u64 = 256;
-
-/// Raises the soft open-files limit (often 1 024) towards what `connections`
-/// need, as far as the hard limit allows, and says so; warns when the hard
-/// limit is too low. Past the limit, connections wait in the backlog.
-fn open_files_for(connections: usize) {
-    use rustix::process::{Resource, getrlimit, setrlimit};
-    let needed = connections as u64 + DESCRIPTORS_BESIDE_CONNECTIONS;
-    let limit = getrlimit(Resource::Nofile);
-    let Some(soft) = limit.current.filter(|&soft| soft < needed) else { return };
-    let raised = limit.maximum.map_or(needed, |hard| hard.min(needed));
-    if raised > soft {
-        match setrlimit(Resource::Nofile, rustix::process::Rlimit { current: Some(raised), ..limit }) {
-            Ok(()) => tracing::info!(from = soft, to = raised, "open-files limit raised for the connections allowed"),
-            Err(e) => tracing::warn!(error = %e, "could not raise the open-files limit"),
-        }
-    }
-    let now = getrlimit(Resource::Nofile).current.unwrap_or(u64::MAX);
-    if now < needed {
-        tracing::warn!(
-            limit = now,
-            needed,
-            "the open-files limit is below what the connection limits need: connections beyond it wait until \
-             others close (raise the hard limit, `ulimit -Hn` or systemd's LimitNOFILE, or lower --max-connections)"
-        );
-    }
 }
 
 /// Resolves on SIGTERM or SIGINT.

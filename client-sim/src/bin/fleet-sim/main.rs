@@ -24,6 +24,10 @@ use exploration::math::ShortNumber;
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+/// Most simulated robots one load test runs: each is a gRPC client with
+/// its own connection.
+const MAX_LOAD_ROBOTS: usize = 100_000;
+
 /// Most calls of one kind a simulated robot sends per second under load.
 const MAX_ROBOT_HZ: f64 = 100.0;
 
@@ -79,6 +83,13 @@ async fn load(args: LoadArgs) -> anyhow::Result<()> {
     }
     anyhow::ensure!(args.capacity_callers != Some(0), "--capacity-callers must be at least 1");
     anyhow::ensure!(args.executive_pid != Some(0), "--executive-pid must name a process (1 or more)");
+    let team = args.missions.checked_mul(args.robots).filter(|&n| n <= MAX_LOAD_ROBOTS).with_context(|| {
+        format!("--missions {} × --robots {}: at most {MAX_LOAD_ROBOTS} robots in all", args.missions, args.robots)
+    })?;
+    // A connection per robot and per capacity caller, and the executive's
+    // end of each when it runs in this process.
+    let callers = team + args.capacity_callers.unwrap_or(team);
+    coordinator::connections::open_files_for(if args.server.is_some() { callers } else { 2 * callers });
     let warehouse = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../maps/nav2_warehouse.yaml");
     let world = args.world.spec(Some(warehouse))?;
     let config = client_sim::load::LoadConfig {
