@@ -163,6 +163,11 @@ fn check_path(path: &Path) -> Result<(), StoreError> {
     if path.is_dir() {
         return bad("is a folder; give a file in it (created if missing)".to_owned());
     }
+    // A device or a pipe (`/dev/null`) cannot hold a database, and its lock
+    // file would land in /dev.
+    if path.exists() && !path.is_file() {
+        return bad("is not a regular file (a device or a pipe); give a database file (created if missing)".to_owned());
+    }
     match path.parent().filter(|p| !p.as_os_str().is_empty()) {
         Some(dir) if !dir.is_dir() => bad(format!("the folder {} does not exist", dir.display())),
         _ => Ok(()),

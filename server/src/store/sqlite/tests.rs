@@ -101,8 +101,9 @@ async fn corrupt_rows_are_refused_naming_table_row_and_column() {
     }
 }
 
-/// Only a file keeps what is acknowledged: in-memory databases, folders and
-/// files in missing folders are refused with the reason.
+/// Only a file keeps what is acknowledged: in-memory databases, folders,
+/// devices and files in missing folders are refused with the reason, before
+/// a lock file is made beside them.
 #[tokio::test]
 async fn only_database_files_are_opened() {
     let dir = tempfile::tempdir().unwrap();
@@ -111,10 +112,12 @@ async fn only_database_files_are_opened() {
         (std::path::PathBuf::from("file:x?mode=memory"), "database file"),
         (dir.path().to_owned(), "is a folder"),
         (dir.path().join("missing/x.db"), "does not exist"),
+        (std::path::PathBuf::from("/dev/null"), "is not a regular file"),
     ] {
         let err = SqliteStore::open(&path, Durability::Full).await.unwrap_err();
         assert!(matches!(err, StoreError::Path(_)) && err.to_string().contains(why), "{path:?}: {err}");
     }
+    assert!(!std::path::Path::new("/dev/null.lock").exists(), "a lock file was made in /dev");
 }
 
 /// A backup taken while the store is open holds everything committed, and
