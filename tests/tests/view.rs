@@ -142,6 +142,16 @@ async fn the_view_asks_for_a_token_and_lets_every_valid_one_read() {
     let missing = Get::send(http, "/api/missions/999/live", Some(VIEWER)).await;
     assert_eq!(missing.status, 404);
     assert!(missing.body().await.contains("999"));
+    // Every refusal of the API is the same JSON, a malformed id's too, and
+    // what it repeats of the request is escaped.
+    for (id, said) in
+        [("abc", "\"abc\" is not a mission id"), ("%01x", "\"\\u{1}x\" is not"), ("18446744073709551616", "2^64")]
+    {
+        let malformed = Get::send(http, &format!("/api/missions/{id}/live"), Some(VIEWER)).await;
+        assert_eq!(malformed.status, 400, "{id}");
+        let body: Value = serde_json::from_str(&malformed.body().await).unwrap();
+        assert!(body["error"].as_str().unwrap().contains(said), "{id}: {body}");
+    }
     exec.stop().await;
 }
 
@@ -317,7 +327,8 @@ async fn live_views_beyond_the_limit_are_refused_until_one_closes() {
     }
     let refused = Get::send(http, &path, None).await;
     assert_eq!(refused.status, 503);
-    assert!(refused.body().await.contains("64 live views are open"));
+    let body: Value = serde_json::from_str(&refused.body().await).unwrap();
+    assert!(body["error"].as_str().unwrap().contains("64 live views are open"), "{body}");
     drop(open.pop());
     // The closed view's stream ends when the executive next writes to it:
     // change the mission until a view is admitted again.

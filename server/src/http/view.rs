@@ -87,10 +87,19 @@ pub(super) async fn missions(State(state): State<Shared>, _caller: Authenticated
 }
 
 /// `GET /api/missions/{id}/live`: the mission as server-sent events.
-pub(super) async fn live(State(state): State<Shared>, Path(id): Path<u64>, _caller: Authenticated) -> Response {
+pub(super) async fn live(State(state): State<Shared>, Path(id): Path<String>, _caller: Authenticated) -> Response {
+    // Read here rather than by axum, whose refusal is plain text that
+    // echoes the raw segment (control characters included).
+    let Ok(id) = id.parse::<u64>() else {
+        return error_response(Error::InvalidArgument(format!(
+            "{id:?} is not a mission id (a number from 0 to 2^64 - 1)"
+        )));
+    };
     let Ok(permit) = Arc::clone(&state.live_streams).try_acquire_owned() else {
-        let message = format!("{MAX_LIVE_STREAMS} live views are open, the most this executive serves; retry later\n");
-        return (StatusCode::SERVICE_UNAVAILABLE, [(header::RETRY_AFTER, "5")], message).into_response();
+        let message = format!("{MAX_LIVE_STREAMS} live views are open, the most this executive serves; retry later");
+        let mut refused = error_response(Error::Overloaded(message));
+        refused.headers_mut().insert(header::RETRY_AFTER, header::HeaderValue::from_static("5"));
+        return refused;
     };
     let mut cursor = Cursor::default();
     let first = match Frame::read(&state.executive, id, &mut cursor).await {
