@@ -22,10 +22,14 @@ use std::task::{Context, Poll, ready};
 use std::time::Duration;
 
 use futures::task::AtomicWaker;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::gauge::Gauge;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::time::{Instant, Sleep};
 use tonic::transport::server::{Connected, TcpConnectInfo};
+
+use crate::metrics::{Label, Metrics, RefusalLabels};
 
 /// Limits on the connections an executive holds.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -96,11 +100,14 @@ pub struct ConnectionInfo {
 
 /// Gives back a connection's place under the limit when it closes.
 #[derive(Debug)]
-struct Slot(Arc<AtomicUsize>);
+struct Slot(Arc<AtomicUsize>, Option<Gauge>);
 
 impl Drop for Slot {
     fn drop(&mut self) {
         self.0.fetch_sub(1, Ordering::AcqRel);
+        if let Some(open) = &self.1 {
+            open.dec();
+        }
     }
 }
 
@@ -264,6 +271,16 @@ pub struct Incoming {
     /// Armed when accepting failed for want of a resource (descriptors,
     /// memory): no accept is tried before it fires.
     backoff: Option<Pin<Box<Sleep>>>,
+    /// Where its connections are counted, if anywhere.
+    counted: Option<ListenerFigures>,
+}
+
+/// A listener's figures in the executive's metrics.
+#[derive(Debug)]
+struct ListenerFigures {
+    open: Gauge,
+    at_limit: Counter,
+    accept_errors: Counter,
 }
 
 /// How long accepting pauses after it failed for want of a resource. The
@@ -274,7 +291,25 @@ const ACCEPT_BACKOFF: Duration = Duration::from_millis(100);
 impl Incoming {
     /// Accepts on `listener` (called `name` in the log) within `limits`.
     pub fn new(name: &'static str, listener: TcpListener, limits: ConnectionLimits) -> Self {
-        Self { name, listener, limits, open: Arc::new(AtomicUsize::new(0)), refused_logged: None, backoff: None }
+        let open = Arc::new(AtomicUsize::new(0));
+        Self { name, listener, limits, open, refused_logged: None, backoff: None, counted: None }
+    }
+
+    /// Counts its open connections, those turned away and failed accepts in
+    /// `metrics`, under its name.
+    pub fn counted_in(mut self, metrics: &Metrics) -> Self {
+        let refused = |reason: &str| {
+            metrics
+                .connections_refused
+                .get_or_create(&RefusalLabels { listener: self.name.to_owned(), reason: reason.to_owned() })
+                .clone()
+        };
+        self.counted = Some(ListenerFigures {
+            open: metrics.connections.get_or_create(&Label { name: self.name.to_owned() }).clone(),
+            at_limit: refused("limit"),
+            accept_errors: refused("accept error"),
+        });
+        self
     }
 
     /// The address it listens on.
@@ -284,6 +319,9 @@ impl Incoming {
 
     fn admit(&mut self, stream: TcpStream, peer: SocketAddr) -> Option<Tracked> {
         if self.open.load(Ordering::Acquire) >= self.limits.max_connections {
+            if let Some(counted) = &self.counted {
+                counted.at_limit.inc();
+            }
             if self.refused_logged.is_none_or(|at| at.elapsed() >= Duration::from_secs(1)) {
                 tracing::warn!(
                     listener = self.name,
@@ -300,7 +338,11 @@ impl Incoming {
             socket2::TcpKeepalive::new().with_time(Duration::from_secs(30)).with_interval(Duration::from_secs(10));
         let _ = socket2::SockRef::from(&stream).set_tcp_keepalive(&keepalive);
         self.open.fetch_add(1, Ordering::AcqRel);
-        Some(Tracked::new(stream, peer, self.limits.idle_timeout, Slot(Arc::clone(&self.open))))
+        let open = self.counted.as_ref().map(|counted| counted.open.clone());
+        if let Some(open) = &open {
+            open.inc();
+        }
+        Some(Tracked::new(stream, peer, self.limits.idle_timeout, Slot(Arc::clone(&self.open), open)))
     }
 }
 
@@ -326,6 +368,9 @@ impl futures::Stream for Incoming {
                     tracing::debug!(listener = self.name, error = %e, "a connection failed before it was accepted");
                 }
                 Err(e) => {
+                    if let Some(counted) = &self.counted {
+                        counted.accept_errors.inc();
+                    }
                     if self.refused_logged.is_none_or(|at| at.elapsed() >= Duration::from_secs(1)) {
                         tracing::warn!(
                             listener = self.name,
@@ -488,7 +533,7 @@ mod tests {
 
     fn tracked(stream: DuplexStream, idle_timeout: Duration) -> Tracked<DuplexStream> {
         let peer = SocketAddr::from(([127, 0, 0, 1], 9));
-        Tracked::new(stream, peer, idle_timeout, Slot(Arc::new(AtomicUsize::new(1))))
+        Tracked::new(stream, peer, idle_timeout, Slot(Arc::new(AtomicUsize::new(1)), None))
     }
 
     /// No open request for the idle time ends the connection (its reader
@@ -540,14 +585,23 @@ mod tests {
         use axum::serve::Listener;
         let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
         let address = listener.local_addr().unwrap();
-        let mut incoming = Incoming::new("test", listener, ConnectionLimits::side_listener(2));
+        let metrics = Metrics::new();
+        let mut incoming = Incoming::new("test", listener, ConnectionLimits::side_listener(2)).counted_in(&metrics);
+        let figure = |name: &str| {
+            let text = metrics.encode();
+            text.lines().find(|l| l.starts_with(name)).map(|l| l.rsplit(' ').next().unwrap().to_owned())
+        };
         let (_a, _b) = (TcpStream::connect(address).await.unwrap(), TcpStream::connect(address).await.unwrap());
         let held = [incoming.accept().await.0, incoming.accept().await.0];
+        assert_eq!(figure("coordinator_connections{name=\"test\"}").as_deref(), Some("2"));
         let mut third = TcpStream::connect(address).await.unwrap();
         let next = tokio::spawn(async move { incoming.accept().await.1 });
         let mut byte = [0u8; 1];
         assert_eq!(third.read(&mut byte).await.unwrap(), 0, "closed at once");
+        let refused = "coordinator_connections_refused_total{listener=\"test\",reason=\"limit\"}";
+        assert_eq!(figure(refused).as_deref(), Some("1"));
         drop(held);
+        assert_eq!(figure("coordinator_connections{name=\"test\"}").as_deref(), Some("0"));
         let fourth = TcpStream::connect(address).await.unwrap();
         assert_eq!(next.await.unwrap(), fourth.local_addr().unwrap(), "a slot came back");
     }

@@ -237,10 +237,12 @@ pub async fn run_with(
     let address = listener.local_addr().ok();
     warn_about_exposure(&auth, address, config.tls.is_some());
     let streams_end = CancellationToken::new();
+    let metrics = Arc::new(metrics::Metrics::new());
     // Where gRPC has TLS, so has HTTP: the view's API carries tokens too.
     let http_grace = config.http_connections.drain_grace;
-    let http_listener =
-        http_listener.map(|listener| connections::Incoming::new("HTTP", listener, config.http_connections.clone()));
+    let http_listener = http_listener.map(|listener| {
+        connections::Incoming::new("HTTP", listener, config.http_connections.clone()).counted_in(&metrics)
+    });
     let http_listener = match (http_listener, &config.tls) {
         (Some(listener), Some(tls)) => {
             Some(HttpListener::Tls(http::TlsListener::new(listener, tls, streams_end.clone())?))
@@ -251,7 +253,6 @@ pub async fn run_with(
     if let (Some(_), Location::Sqlite(path)) = (&config.executive.replica, &config.db) {
         return Err(ServeError::ReplicasNeedPostgres(path.display().to_string()));
     }
-    let metrics = Arc::new(metrics::Metrics::new());
     let store = config
         .db
         .open(config.durability, config.executive.replica.is_some(), Some(Arc::clone(&metrics)))
@@ -308,7 +309,7 @@ pub async fn run_with(
         // Probes need a few connections; whoever else reaches this port
         // must not hold the descriptors gRPC needs.
         let limits = ConnectionLimits::side_listener(HEALTH_CONNECTIONS);
-        let incoming = connections::Incoming::new("health", listener, limits);
+        let incoming = connections::Incoming::new("health", listener, limits).counted_in(&metrics);
         tokio::spawn(
             tonic::transport::Server::builder()
                 .layer(connections::ActivityLayer)
@@ -326,7 +327,7 @@ pub async fn run_with(
         .build_v1alpha()?;
 
     tracing::info!(?address, db = %config.db, tls = config.tls.is_some(), "executive serving");
-    let incoming = connections::Incoming::new("gRPC", listener, config.connections.clone());
+    let incoming = connections::Incoming::new("gRPC", listener, config.connections.clone()).counted_in(&metrics);
     let drain = {
         let health = health.clone();
         let streams_end = streams_end.clone();

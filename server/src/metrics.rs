@@ -2,7 +2,8 @@
 //!
 //! Calls by method and status with latency histograms (the [`RpcMetricsLayer`]
 //! in front of every service), replanning time by policy, the planner's
-//! triggers and stale plans, store commit latency, shed calls, and, read
+//! triggers and stale plans, store commit latency, shed calls, connections
+//! open and turned away by listener, and, read
 //! from the executive at each scrape, missions and robots by state and each
 //! mission's frontier and coverage.
 
@@ -33,6 +34,16 @@ pub struct CallLabels {
 pub struct Label {
     /// Its value.
     pub name: String,
+}
+
+/// A listener, and why it turned connections away.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct RefusalLabels {
+    /// `gRPC`, `HTTP` or `health`.
+    pub listener: String,
+    /// `limit` (at its connection limit) or `accept error` (descriptors
+    /// or memory ran out).
+    pub reason: String,
 }
 
 /// Per mission.
@@ -87,6 +98,11 @@ pub struct Metrics {
     pub patches_folded: Counter,
     /// Calls refused to shed load, by reason.
     pub shed: Family<Label, Counter>,
+    /// Open connections, by listener.
+    pub connections: Family<Label, Gauge>,
+    /// Connections turned away (at the limit), and accepts that failed (out
+    /// of descriptors), by listener.
+    pub connections_refused: Family<RefusalLabels, Counter>,
     /// Missions by state (at the scrape).
     pub missions: Family<Label, Gauge>,
     /// Robots by state; lost robots count as `lost` (at the scrape).
@@ -123,6 +139,8 @@ impl Metrics {
             store_queued: latency_histogram(),
             patches_folded: Counter::default(),
             shed: Family::default(),
+            connections: Family::default(),
+            connections_refused: Family::default(),
             missions: Family::default(),
             robots: Family::default(),
             frontier_cells: Family::default(),
@@ -181,6 +199,12 @@ impl Metrics {
             metrics.patches_folded.clone(),
         );
         registry.register("shed", "Calls refused to shed load, by reason", metrics.shed.clone());
+        registry.register("connections", "Open connections, by listener", metrics.connections.clone());
+        registry.register(
+            "connections_refused",
+            "Connections turned away at the limit, and failed accepts (out of descriptors), by listener",
+            metrics.connections_refused.clone(),
+        );
         registry.register("missions", "Missions by state", metrics.missions.clone());
         registry.register("robots", "Robots by state (lost robots as lost)", metrics.robots.clone());
         registry.register("frontier_cells", "Frontier cells of each mission", metrics.frontier_cells.clone());

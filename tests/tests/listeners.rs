@@ -160,14 +160,15 @@ async fn the_health_listener_holds_at_most_its_budget() {
 
 /// The executive's binary started with `ulimit LIMIT` (soft and hard with
 /// `-n`, soft alone with `-Sn`), logging to `dir`/log, once it serves.
-async fn under_open_files_limit(limit: &str, dir: &std::path::Path) -> (std::process::Child, SocketAddr) {
-    let port = common::free_port();
+async fn under_open_files_limit(limit: &str, dir: &std::path::Path) -> (std::process::Child, SocketAddr, SocketAddr) {
+    let (port, http_port) = (common::free_port(), common::free_port());
     let log = std::fs::File::create(dir.join("log")).unwrap();
     let coordinator = std::process::Command::new("sh")
         .arg("-c")
         .arg(format!(r#"ulimit {limit} && exec "$0" "$@""#))
         .arg(common::binary("coordinator"))
         .args(["--listen", &format!("127.0.0.1:{port}"), "--health-listen", "127.0.0.1:0"])
+        .args(["--http", &format!("127.0.0.1:{http_port}")])
         .arg("--db")
         .arg(dir.join("fds.db"))
         .env("RUST_LOG", "warn,coordinator=info")
@@ -177,7 +178,17 @@ async fn under_open_files_limit(limit: &str, dir: &std::path::Path) -> (std::pro
         .spawn()
         .unwrap();
     common::wait_until_serving(&format!("http://127.0.0.1:{port}"), Duration::from_secs(30)).await;
-    (coordinator, format!("127.0.0.1:{port}").parse().unwrap())
+    let address = |port: u16| format!("127.0.0.1:{port}").parse().unwrap();
+    (coordinator, address(port), address(http_port))
+}
+
+/// The executive's metrics, read from its HTTP listener at `address`.
+async fn scraped(address: SocketAddr) -> String {
+    let mut stream = TcpStream::connect(address).await.unwrap();
+    stream.write_all(b"GET /metrics HTTP/1.1\r\nhost: x\r\nconnection: close\r\n\r\n").await.unwrap();
+    let mut text = String::new();
+    stream.read_to_string(&mut text).await.unwrap();
+    text
 }
 
 /// A soft open-files limit of 64 (the usual soft limit is 1 024, a
@@ -187,7 +198,7 @@ async fn under_open_files_limit(limit: &str, dir: &std::path::Path) -> (std::pro
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_low_soft_open_files_limit_is_raised_for_the_connections_allowed() {
     let dir = tempfile::tempdir().unwrap();
-    let (mut coordinator, address) = under_open_files_limit("-Sn 64", dir.path()).await;
+    let (mut coordinator, address, _) = under_open_files_limit("-Sn 64", dir.path()).await;
     let held = silent(address, 100).await;
     let answered = answers_a_probe(address).await;
     drop(held);
@@ -215,7 +226,7 @@ fn cpu_ticks(pid: u32) -> u64 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn out_of_descriptors_the_executive_waits_quietly_and_recovers() {
     let dir = tempfile::tempdir().unwrap();
-    let (mut coordinator, address) = under_open_files_limit("-n 64", dir.path()).await;
+    let (mut coordinator, address, http) = under_open_files_limit("-n 64", dir.path()).await;
     // More connections than the process has descriptors: the last ones
     // wait in the backlog.
     let mut held = silent(address, 100).await;
@@ -232,9 +243,16 @@ async fn out_of_descriptors_the_executive_waits_quietly_and_recovers() {
         }
     })
     .await;
+    let metrics = scraped(http).await;
     coordinator.kill().unwrap();
     coordinator.wait().unwrap();
     assert!(spent < 40, "{spent} ticks of CPU in 2 s while out of descriptors");
+    // Operators see it in the metrics too.
+    let failed = metrics
+        .lines()
+        .find(|l| l.starts_with(r#"coordinator_connections_refused_total{listener="gRPC",reason="accept error"}"#))
+        .and_then(|l| l.rsplit(' ').next()?.parse::<u64>().ok());
+    assert!(failed.is_some_and(|n| n > 0), "{metrics}");
     assert!(said.contains("cannot accept connections") && said.contains("Too many open files"), "{said}");
     assert!(recovered.is_ok(), "no answer after the connections were closed");
 }
