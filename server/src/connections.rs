@@ -237,7 +237,7 @@ const DESCRIPTORS_BESIDE_CONNECTIONS: u64 = 256;
 /// backlog. For binaries: the limit is the whole process's.
 pub fn open_files_for(connections: usize) {
     use rustix::process::{Resource, getrlimit, setrlimit};
-    let needed = connections as u64 + DESCRIPTORS_BESIDE_CONNECTIONS;
+    let needed = (connections as u64).saturating_add(DESCRIPTORS_BESIDE_CONNECTIONS);
     let limit = getrlimit(Resource::Nofile);
     let Some(soft) = limit.current.filter(|&soft| soft < needed) else { return };
     let raised = limit.maximum.map_or(needed, |hard| hard.min(needed));
@@ -580,6 +580,19 @@ mod tests {
 
     /// Beyond the limit a connection is closed unread; a slot comes back
     /// when a held connection ends.
+    /// `--max-connections 18446744073709551615` overflowed the count of
+    /// descriptors needed; the limit is only ever raised.
+    #[test]
+    fn any_count_of_connections_raises_the_open_files_limit_at_most_to_the_hard_one() {
+        use rustix::process::{Resource, getrlimit};
+        let before = getrlimit(Resource::Nofile);
+        open_files_for(usize::MAX);
+        open_files_for(0);
+        let after = getrlimit(Resource::Nofile);
+        assert!(after.current >= before.current, "{before:?} → {after:?}");
+        assert_eq!(after.maximum, before.maximum);
+    }
+
     #[tokio::test]
     async fn connections_beyond_the_limit_are_closed_as_they_arrive() {
         use axum::serve::Listener;

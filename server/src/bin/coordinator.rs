@@ -290,7 +290,7 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         ..ConnectionLimits::default()
     };
     coordinator::connections::open_files_for(
-        args.max_connections + args.http_max_connections + coordinator::HEALTH_CONNECTIONS,
+        args.max_connections.saturating_add(args.http_max_connections).saturating_add(coordinator::HEALTH_CONNECTIONS),
     );
     config.shedding = shedding(args.shed_target_ms, args.shed_interval_ms)?;
     config.durability = match args.durability {

@@ -88,8 +88,8 @@ async fn load(args: LoadArgs) -> anyhow::Result<()> {
     })?;
     // A connection per robot and per capacity caller, and the executive's
     // end of each when it runs in this process.
-    let callers = team + args.capacity_callers.unwrap_or(team);
-    coordinator::connections::open_files_for(if args.server.is_some() { callers } else { 2 * callers });
+    let callers = team.saturating_add(args.capacity_callers.unwrap_or(team));
+    coordinator::connections::open_files_for(if args.server.is_some() { callers } else { callers.saturating_mul(2) });
     let warehouse = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../maps/nav2_warehouse.yaml");
     let world = args.world.spec(Some(warehouse))?;
     let config = client_sim::load::LoadConfig {
