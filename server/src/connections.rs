@@ -375,7 +375,7 @@ impl futures::Stream for Incoming {
                         tracing::warn!(
                             listener = self.name,
                             error = %e,
-                            "cannot accept connections (raise the open-files limit, `ulimit -n`, or lower --max-connections); retrying"
+                            "cannot accept connections (raise the hard open-files limit, `ulimit -Hn` or systemd's LimitNOFILE, or lower the connection limits); retrying"
                         );
                         self.refused_logged = Some(Instant::now());
                     }
@@ -404,13 +404,17 @@ impl axum::serve::Listener for Incoming {
     type Addr = SocketAddr;
 
     async fn accept(&mut self) -> (Tracked, SocketAddr) {
-        // The stream yields no errors, and ends never.
-        match futures::StreamExt::next(self).await {
-            Some(Ok(tracked)) => {
-                let peer = tracked.peer;
-                (tracked, peer)
+        loop {
+            match futures::StreamExt::next(self).await {
+                Some(Ok(tracked)) => {
+                    let peer = tracked.peer;
+                    return (tracked, peer);
+                }
+                // Not yielded: accept errors are waited out in the stream.
+                Some(Err(_)) => continue,
+                // A listener's stream does not end.
+                None => return std::future::pending().await,
             }
-            Some(Err(_)) | None => std::future::pending().await,
         }
     }
 
