@@ -120,14 +120,18 @@ async fn map_updates(
     missions.get_mission(pb::GetMissionRequest { mission_id: id }).await.unwrap().into_inner().map_updates
 }
 
-/// Shedding settings out of range are refused at start, naming the flag.
+/// Shedding and connection settings out of range are refused at start,
+/// naming the flag.
 #[test]
-fn absurd_shedding_settings_refuse_to_start() {
+fn absurd_shedding_and_connection_settings_refuse_to_start() {
     let dir = tempfile::tempdir().unwrap();
     for (args, says) in [
         (["--shed-target-ms", "60001"], "--shed-target-ms must be 0 (off) to 60000"),
         (["--shed-interval-ms", "0"], "--shed-interval-ms must be 1 to 60000"),
         (["--shed-interval-ms", "1000000"], "--shed-interval-ms must be 1 to 60000"),
+        // Every connection closed at once; no number at all.
+        (["--idle-timeout", "1e-9"], "--idle-timeout must be a number of seconds from 1 to 1e6"),
+        (["--idle-timeout", "NaN"], "--idle-timeout must be a number of seconds from 1 to 1e6"),
     ] {
         let (ok, stderr) = coordinator_exits(&args, &dir.path().join("t.db"));
         assert!(!ok, "{args:?} must not start");

@@ -277,8 +277,10 @@ async fn serve(args: Args) -> anyhow::Result<()> {
         );
     }
     anyhow::ensure!(
-        args.idle_timeout.is_finite() && args.idle_timeout > 0.0 && args.idle_timeout <= 1e6,
-        "--idle-timeout must be a number of seconds in (0, 1e6]"
+        // Under a second, a call's pause or a moment's backpressure would
+        // close the connection under it.
+        (1.0..=1e6).contains(&args.idle_timeout),
+        "--idle-timeout must be a number of seconds from 1 to 1e6"
     );
     // 0 would refuse every caller, the health checks included.
     anyhow::ensure!(args.max_connections >= 1, "--max-connections must be at least 1");
