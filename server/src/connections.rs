@@ -100,14 +100,11 @@ pub struct ConnectionInfo {
 
 /// Gives back a connection's place under the limit when it closes.
 #[derive(Debug)]
-struct Slot(Arc<AtomicUsize>, Option<Gauge>);
+struct Slot(Gauge);
 
 impl Drop for Slot {
     fn drop(&mut self) {
-        self.0.fetch_sub(1, Ordering::AcqRel);
-        if let Some(open) = &self.1 {
-            open.dec();
-        }
+        self.0.dec();
     }
 }
 
@@ -265,7 +262,9 @@ pub struct Incoming {
     name: &'static str,
     listener: TcpListener,
     limits: ConnectionLimits,
-    open: Arc<AtomicUsize>,
+    /// Its open connections: its own count, or the executive's metric of
+    /// them once [`Incoming::counted_in`].
+    open: Gauge,
     /// When a refusal was last logged (one line per second at most).
     refused_logged: Option<Instant>,
     /// Armed when accepting failed for want of a resource (descriptors,
@@ -278,7 +277,6 @@ pub struct Incoming {
 /// A listener's figures in the executive's metrics.
 #[derive(Debug)]
 struct ListenerFigures {
-    open: Gauge,
     at_limit: Counter,
     accept_errors: Counter,
 }
@@ -291,12 +289,11 @@ const ACCEPT_BACKOFF: Duration = Duration::from_millis(100);
 impl Incoming {
     /// Accepts on `listener` (called `name` in the log) within `limits`.
     pub fn new(name: &'static str, listener: TcpListener, limits: ConnectionLimits) -> Self {
-        let open = Arc::new(AtomicUsize::new(0));
-        Self { name, listener, limits, open, refused_logged: None, backoff: None, counted: None }
+        Self { name, listener, limits, open: Gauge::default(), refused_logged: None, backoff: None, counted: None }
     }
 
     /// Counts its open connections, those turned away and failed accepts in
-    /// `metrics`, under its name.
+    /// `metrics`, under its name. Before it accepts anything.
     pub fn counted_in(mut self, metrics: &Metrics) -> Self {
         let refused = |reason: &str| {
             metrics
@@ -304,11 +301,9 @@ impl Incoming {
                 .get_or_create(&RefusalLabels { listener: self.name.to_owned(), reason: reason.to_owned() })
                 .clone()
         };
-        self.counted = Some(ListenerFigures {
-            open: metrics.connections.get_or_create(&Label { name: self.name.to_owned() }).clone(),
-            at_limit: refused("limit"),
-            accept_errors: refused("accept error"),
-        });
+        // Nothing is open yet: the metric takes over the count.
+        self.open = metrics.connections.get_or_create(&Label { name: self.name.to_owned() }).clone();
+        self.counted = Some(ListenerFigures { at_limit: refused("limit"), accept_errors: refused("accept error") });
         self
     }
 
@@ -318,7 +313,7 @@ impl Incoming {
     }
 
     fn admit(&mut self, stream: TcpStream, peer: SocketAddr) -> Option<Tracked> {
-        if self.open.load(Ordering::Acquire) >= self.limits.max_connections {
+        if usize::try_from(self.open.get()).is_ok_and(|open| open >= self.limits.max_connections) {
             if let Some(counted) = &self.counted {
                 counted.at_limit.inc();
             }
@@ -337,12 +332,8 @@ impl Incoming {
         let keepalive =
             socket2::TcpKeepalive::new().with_time(Duration::from_secs(30)).with_interval(Duration::from_secs(10));
         let _ = socket2::SockRef::from(&stream).set_tcp_keepalive(&keepalive);
-        self.open.fetch_add(1, Ordering::AcqRel);
-        let open = self.counted.as_ref().map(|counted| counted.open.clone());
-        if let Some(open) = &open {
-            open.inc();
-        }
-        Some(Tracked::new(stream, peer, self.limits.idle_timeout, Slot(Arc::clone(&self.open), open)))
+        self.open.inc();
+        Some(Tracked::new(stream, peer, self.limits.idle_timeout, Slot(self.open.clone())))
     }
 }
 
@@ -537,7 +528,7 @@ mod tests {
 
     fn tracked(stream: DuplexStream, idle_timeout: Duration) -> Tracked<DuplexStream> {
         let peer = SocketAddr::from(([127, 0, 0, 1], 9));
-        Tracked::new(stream, peer, idle_timeout, Slot(Arc::new(AtomicUsize::new(1)), None))
+        Tracked::new(stream, peer, idle_timeout, Slot(Gauge::default()))
     }
 
     /// No open request for the idle time ends the connection (its reader
