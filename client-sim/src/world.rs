@@ -65,8 +65,14 @@ pub fn check_grid(name: &str, width_m: f64, height_m: f64, cell: f64) -> Result<
     let cells = |metres: f64| (metres / cell).ceil() as i64;
     match coordinator::validate::frame(cell, Point2::origin(), cells(width_m), cells(height_m), "") {
         Ok(_) => Ok(()),
-        Err(e) => refuse(format!("{e} (a world of {width_m:.2} × {height_m:.2} m in cells of {cell} m)")),
+        Err(e) => refuse(format!("{e} (a world of {} × {} m in cells of {cell} m)", short(width_m), short(height_m))),
     }
+}
+
+/// A length for a message: centimetres, or an exponent where the figure
+/// would run to hundreds of digits (a resolution of 1e300 in a YAML).
+fn short(metres: f64) -> String {
+    if metres.abs() < 1e7 { format!("{metres:.2}") } else { format!("{metres:.3e}") }
 }
 
 /// What a map_server YAML says.
@@ -501,6 +507,9 @@ mod tests {
         assert!(check_grid("edge", 2500.0, 156.25, 0.125).is_ok(), "20 000 × 1 250 cells, the limits");
         assert!(check_grid("edge", 2500.0, 156.375, 0.125).is_err(), "one row more");
         assert!(check_grid("edge", 2500.125, 1.0, 0.125).is_err(), "one column more");
+        // A YAML's resolution of 1e300 is named in a line, not 300 digits.
+        let message = check_grid("vast", 4e300, 4e300, 0.15).unwrap_err().to_string();
+        assert!(message.contains("4.000e300 × 4.000e300 m") && message.len() < 200, "{message}");
     }
 
     #[test]
