@@ -6,28 +6,32 @@ use clap::{Parser, Subcommand};
 
 use exploration_proto::v1 as pb;
 
+/// The heading under which every command's help lists how to reach the
+/// executive, apart from the command's own options.
+const CONNECTION: &str = "Connecting to the executive";
+
 #[derive(Debug, Parser)]
 #[command(name = "coordctl", version, about = "Watch and steer robot fleets exploring through the executive")]
 pub(crate) struct Cli {
     /// The executive's address; replicas sharing a database: their addresses, comma-separated.
-    #[arg(long, global = true, env = "COORDINATOR_URL", default_value = "http://127.0.0.1:50051")]
+    #[arg(long, global = true, env = "COORDINATOR_URL", default_value = "http://127.0.0.1:50051", help_heading = CONNECTION)]
     pub(crate) server: String,
     /// The operator token (see `coordinator --operator-token`).
-    #[arg(long, global = true, env = "COORDINATOR_TOKEN", hide_env_values = true)]
+    #[arg(long, global = true, env = "COORDINATOR_TOKEN", hide_env_values = true, help_heading = CONNECTION)]
     pub(crate) token: Option<String>,
     /// Your name, recorded with every change you make on an executive that
     /// runs open; one that checks tokens records the name of your token.
-    #[arg(long = "as", global = true, env = "USER", default_value = "operator")]
+    #[arg(long = "as", global = true, env = "USER", default_value = "operator", help_heading = CONNECTION)]
     pub(crate) actor: String,
     /// PEM CA certificate(s) to trust for an `https://` executive (default:
     /// the system's roots).
-    #[arg(long, global = true, env = "COORDINATOR_TLS_CA")]
+    #[arg(long, global = true, env = "COORDINATOR_TLS_CA", help_heading = CONNECTION)]
     pub(crate) tls_ca: Option<std::path::PathBuf>,
     /// PEM client certificate, when the executive asks for one (mutual TLS).
-    #[arg(long, global = true, env = "COORDINATOR_TLS_CLIENT_CERT", requires = "tls_key")]
+    #[arg(long, global = true, env = "COORDINATOR_TLS_CLIENT_CERT", requires = "tls_key", help_heading = CONNECTION)]
     pub(crate) tls_cert: Option<std::path::PathBuf>,
     /// PEM key of --tls-cert.
-    #[arg(long, global = true, env = "COORDINATOR_TLS_CLIENT_KEY", requires = "tls_cert")]
+    #[arg(long, global = true, env = "COORDINATOR_TLS_CLIENT_KEY", requires = "tls_cert", help_heading = CONNECTION)]
     pub(crate) tls_key: Option<std::path::PathBuf>,
     /// Print JSON instead of tables.
     #[arg(long, global = true)]
@@ -162,13 +166,16 @@ pub(crate) enum MissionCommand {
     Show { mission: u64 },
     /// Create a mission over the frame of a map_server YAML, or an explicit frame.
     Create {
+        /// A name for people; printable text.
         #[arg(long, default_value = "mission")]
         name: String,
         /// Take the frame (size, resolution, origin) from this map.
         #[arg(long, conflicts_with_all = ["width", "height"])]
         map: Option<PathBuf>,
+        /// The grid's width in cells, without --map.
         #[arg(long, requires = "height")]
         width: Option<u32>,
+        /// The grid's height in cells, without --map.
         #[arg(long, requires = "width")]
         height: Option<u32>,
         /// Metres per cell (with --map: defaults to the map's).
@@ -177,6 +184,7 @@ pub(crate) enum MissionCommand {
         /// World position of cell (0, 0)'s lower-left corner, x,y.
         #[arg(long, value_parser = parse_point)]
         origin: Option<pb::Point>,
+        /// The coordination policy (`coordctl policies` lists them).
         #[arg(long, default_value = "burgard")]
         policy: String,
         /// A policy parameter, name=value; repeat for more.
