@@ -38,6 +38,7 @@ pub mod metrics;
 pub mod run_to_end;
 pub mod service;
 pub mod store;
+pub mod terminal;
 pub mod validate;
 
 pub use clock::{Clock, ManualClock};

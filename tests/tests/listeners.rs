@@ -256,3 +256,28 @@ async fn out_of_descriptors_the_executive_waits_quietly_and_recovers() {
     assert!(said.contains("cannot accept connections") && said.contains("Too many open files"), "{said}");
     assert!(recovered.is_ok(), "no answer after the connections were closed");
 }
+
+/// Logs written to a file (or a pipe, or journald) carry no terminal colour
+/// codes, which would otherwise stand on every line; `NO_COLOR` is unset,
+/// as it is on most machines.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn logs_written_to_a_file_carry_no_colour_codes() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let log = std::fs::File::create(dir.path().join("log")).unwrap();
+    let mut coordinator = std::process::Command::new(common::binary("coordinator"))
+        .args(["--listen", &format!("127.0.0.1:{port}"), "--db"])
+        .arg(dir.path().join("colours.db"))
+        .env_remove("NO_COLOR")
+        .env("RUST_LOG", "info")
+        .stdout(log)
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    common::wait_until_serving(&format!("http://127.0.0.1:{port}"), Duration::from_secs(30)).await;
+    coordinator.kill().unwrap();
+    coordinator.wait().unwrap();
+    let said = std::fs::read_to_string(dir.path().join("log")).unwrap();
+    assert!(said.contains("executive serving"), "{said}");
+    assert!(!said.contains('\u{1b}'), "escape codes in the log: {said:?}");
+}

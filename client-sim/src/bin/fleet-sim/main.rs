@@ -43,7 +43,11 @@ use cli::{
 #[tokio::main]
 async fn main() -> ExitCode {
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("warn"));
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(coordinator::terminal::colours_on(&std::io::stderr()))
+        .init();
     let done = match Cli::parse().command {
         Command::Run(args) => run(*args).await,
         Command::Experiment(args) => experiment(args).await,
