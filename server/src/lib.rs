@@ -25,6 +25,7 @@ use exploration_proto::v1 as pb;
 
 pub mod admission;
 pub mod auth;
+pub mod cli;
 pub mod clock;
 pub mod connections;
 pub mod cpu_limit;
@@ -38,7 +39,6 @@ pub mod metrics;
 pub mod run_to_end;
 pub mod service;
 pub mod store;
-pub mod terminal;
 pub mod validate;
 
 pub use clock::{Clock, ManualClock};

@@ -12,6 +12,7 @@ use tracing_subscriber::EnvFilter;
 use std::time::Duration;
 
 use coordinator::admission::QueueDelay;
+use coordinator::cli::listen_address;
 use coordinator::{
     Claimant, Compaction, Config, ConnectionLimits, Durability, ExecutiveSettings, Location, ReplicaSettings, TlsConfig,
 };
@@ -30,8 +31,8 @@ const MAX_PLANNER_THREADS: usize = 1024;
 #[derive(Debug, Parser)]
 #[command(version, about)]
 struct Args {
-    /// Address to serve gRPC on.
-    #[arg(long, env = "COORDINATOR_LISTEN", default_value = "127.0.0.1:50051")]
+    /// Address to serve gRPC on: IP:PORT, or HOST:PORT (its first address).
+    #[arg(long, env = "COORDINATOR_LISTEN", default_value = "127.0.0.1:50051", value_parser = listen_address)]
     listen: SocketAddr,
     /// The database: a SQLite file (created if missing), or a PostgreSQL
     /// URL (`postgres://user:password@host:5432/name`).
@@ -111,12 +112,12 @@ struct Args {
     /// Serve HTTP at this address: the live mission view (GET /) and
     /// Prometheus metrics (GET /metrics); off unless given. HTTPS, with the
     /// same certificate and client CA, when gRPC has TLS.
-    #[arg(long, visible_alias = "metrics", env = "COORDINATOR_HTTP")]
+    #[arg(long, visible_alias = "metrics", env = "COORDINATOR_HTTP", value_parser = listen_address)]
     http: Option<SocketAddr>,
     /// Serve the gRPC health service alone, in plaintext, at this address
     /// too: for probes that speak no TLS (Kubernetes' gRPC probes) when the
     /// API is served with TLS. Off unless given.
-    #[arg(long, env = "COORDINATOR_HEALTH_LISTEN")]
+    #[arg(long, env = "COORDINATOR_HEALTH_LISTEN", value_parser = listen_address)]
     health_listen: Option<SocketAddr>,
     /// Log format.
     #[arg(long, env = "COORDINATOR_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
@@ -244,7 +245,7 @@ async fn main() -> ExitCode {
     match args.log_format {
         LogFormat::Text => tracing_subscriber::fmt()
             .with_env_filter(filter)
-            .with_ansi(coordinator::terminal::colours_on(&std::io::stdout()))
+            .with_ansi(coordinator::cli::colours_on(&std::io::stdout()))
             .init(),
         LogFormat::Json => tracing_subscriber::fmt().json().with_env_filter(filter).init(),
     }

@@ -339,7 +339,7 @@ pub(crate) struct RunArgs {
     /// Serve the embedded executive's live web view at this address
     /// (default 127.0.0.1:8080; port 0 picks a free one) and print its URL
     /// and a read-only token; the view stays up after the run until Ctrl-C.
-    #[arg(long, num_args = 0..=1, default_missing_value = "127.0.0.1:8080")]
+    #[arg(long, num_args = 0..=1, default_missing_value = "127.0.0.1:8080", value_parser = coordinator::cli::listen_address)]
     pub(crate) view: Option<std::net::SocketAddr>,
     /// After exploring, follow the executive's home tasks until every robot
     /// is back at its start (or the mission's rendezvous).

@@ -46,7 +46,7 @@ async fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
-        .with_ansi(coordinator::terminal::colours_on(&std::io::stderr()))
+        .with_ansi(coordinator::cli::colours_on(&std::io::stderr()))
         .init();
     let done = match Cli::parse().command {
         Command::Run(args) => run(*args).await,
