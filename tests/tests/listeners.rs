@@ -158,21 +158,26 @@ async fn the_health_listener_holds_at_most_its_budget() {
     drop(held);
 }
 
-/// The executive's binary started with `ulimit LIMIT` (soft and hard with
-/// `-n`, soft alone with `-Sn`), logging to `dir`/log, once it serves.
-async fn under_open_files_limit(limit: &str, dir: &std::path::Path) -> (std::process::Child, SocketAddr, SocketAddr) {
+/// The executive's binary, logging to `dir`/log with `NO_COLOR` unset (a log
+/// in a file is plain without it), once it serves; under `ulimit LIMIT`
+/// when given (soft and hard with `-n`, soft alone with `-Sn`).
+async fn logging_to_a_file(
+    dir: &std::path::Path,
+    limit: Option<&str>,
+) -> (std::process::Child, SocketAddr, SocketAddr) {
     let (port, http_port) = (common::free_port(), common::free_port());
     let log = std::fs::File::create(dir.join("log")).unwrap();
+    let ulimit = limit.map_or(String::new(), |limit| format!("ulimit {limit} && "));
     let coordinator = std::process::Command::new("sh")
         .arg("-c")
-        .arg(format!(r#"ulimit {limit} && exec "$0" "$@""#))
+        .arg(format!(r#"{ulimit}exec "$0" "$@""#))
         .arg(common::binary("coordinator"))
         .args(["--listen", &format!("127.0.0.1:{port}"), "--health-listen", "127.0.0.1:0"])
         .args(["--http", &format!("127.0.0.1:{http_port}")])
         .arg("--db")
-        .arg(dir.join("fds.db"))
+        .arg(dir.join("logged.db"))
         .env("RUST_LOG", "warn,coordinator=info")
-        .env("NO_COLOR", "1")
+        .env_remove("NO_COLOR")
         .stdout(log)
         .stderr(std::process::Stdio::null())
         .spawn()
@@ -198,7 +203,7 @@ async fn scraped(address: SocketAddr) -> String {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_low_soft_open_files_limit_is_raised_for_the_connections_allowed() {
     let dir = tempfile::tempdir().unwrap();
-    let (mut coordinator, address, _) = under_open_files_limit("-Sn 64", dir.path()).await;
+    let (mut coordinator, address, _) = logging_to_a_file(dir.path(), Some("-Sn 64")).await;
     let held = silent(address, 100).await;
     let answered = answers_a_probe(address).await;
     drop(held);
@@ -226,7 +231,7 @@ fn cpu_ticks(pid: u32) -> u64 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn out_of_descriptors_the_executive_waits_quietly_and_recovers() {
     let dir = tempfile::tempdir().unwrap();
-    let (mut coordinator, address, http) = under_open_files_limit("-n 64", dir.path()).await;
+    let (mut coordinator, address, http) = logging_to_a_file(dir.path(), Some("-n 64")).await;
     // More connections than the process has descriptors: the last ones
     // wait in the backlog.
     let mut held = silent(address, 100).await;
@@ -263,18 +268,7 @@ async fn out_of_descriptors_the_executive_waits_quietly_and_recovers() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn logs_written_to_a_file_carry_no_colour_codes() {
     let dir = tempfile::tempdir().unwrap();
-    let port = common::free_port();
-    let log = std::fs::File::create(dir.path().join("log")).unwrap();
-    let mut coordinator = std::process::Command::new(common::binary("coordinator"))
-        .args(["--listen", &format!("127.0.0.1:{port}"), "--db"])
-        .arg(dir.path().join("colours.db"))
-        .env_remove("NO_COLOR")
-        .env("RUST_LOG", "info")
-        .stdout(log)
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    common::wait_until_serving(&format!("http://127.0.0.1:{port}"), Duration::from_secs(30)).await;
+    let (mut coordinator, _, _) = logging_to_a_file(dir.path(), None).await;
     coordinator.kill().unwrap();
     coordinator.wait().unwrap();
     let said = std::fs::read_to_string(dir.path().join("log")).unwrap();
