@@ -241,6 +241,15 @@ impl World {
                 blocked[frame.index(Cell::new(cx as i32, cy as i32))] = !all_free || past_edge;
             }
         }
+        if blocked.iter().all(|&b| b) && free_pixels.iter().any(|&f| f) {
+            // The image has free space, the coarse grid none: say why.
+            return Err(WorldError::Empty(format!(
+                "{name}: no cell of {cell_size} m is free: a cell is free only if all its pixels are free \
+                 and it lies wholly inside the {} × {} m image; try smaller cells",
+                short(width as f64 * resolution),
+                short(height as f64 * resolution)
+            )));
+        }
         Self::from_blocked(name, frame, blocked, start, seed)
     }
 
@@ -527,6 +536,22 @@ mod tests {
         }
         // The two sides are not connected.
         assert_eq!(world.reachable_cells, 2);
+    }
+
+    /// Cells larger than the image, or than any free patch of it, leave
+    /// no free cell; the refusal says that the cells are too large.
+    #[test]
+    fn cells_too_large_for_the_image_are_named() {
+        let free = vec![true; 16];
+        for cell in [0.45, 0.5, 10.0] {
+            let refused = World::from_pixels("small", 4, 4, &free, 0.1, Point2::origin(), cell, StartChoice::Auto, 1);
+            let Err(WorldError::Empty(message)) = refused else { panic!("cell {cell}: {refused:?}") };
+            assert!(message.contains("no cell of") && message.contains("0.40 × 0.40 m"), "{message}");
+        }
+        let walls = vec![false; 16];
+        let refused = World::from_pixels("walls", 4, 4, &walls, 0.1, Point2::origin(), 0.1, StartChoice::Auto, 1);
+        let Err(WorldError::Empty(message)) = refused else { panic!("{refused:?}") };
+        assert!(message.ends_with("no free cell"), "an image without free pixels: {message}");
     }
 
     #[test]

@@ -179,10 +179,10 @@ pub(crate) enum MissionCommand {
         #[arg(long, requires = "width")]
         height: Option<u32>,
         /// Metres per cell (with --map: defaults to the map's).
-        #[arg(long)]
+        #[arg(long, allow_hyphen_values = true)]
         resolution: Option<f64>,
         /// World position of cell (0, 0)'s lower-left corner, x,y.
-        #[arg(long, value_parser = parse_point)]
+        #[arg(long, value_parser = parse_point, allow_hyphen_values = true)]
         origin: Option<pb::Point>,
         /// The coordination policy (`coordctl policies` lists them).
         #[arg(long, default_value = "burgard")]
@@ -191,13 +191,13 @@ pub(crate) enum MissionCommand {
         #[arg(long = "param", value_parser = parse_param)]
         params: Vec<(String, f64)>,
         /// Seconds without news after which a robot loses its task.
-        #[arg(long)]
+        #[arg(long, allow_hyphen_values = true)]
         lease: Option<f64>,
         /// Seconds without progress after which a task fails.
-        #[arg(long)]
+        #[arg(long, allow_hyphen_values = true)]
         stall: Option<f64>,
         /// Where robots meet when exploration is done, x,y.
-        #[arg(long, value_parser = parse_point)]
+        #[arg(long, value_parser = parse_point, allow_hyphen_values = true)]
         rendezvous: Option<pb::Point>,
     },
     /// Robots hold where they are until resumed.
@@ -299,6 +299,25 @@ mod tests {
         assert!(parse_point("inf,0").is_err());
         assert_eq!(parse_param("beta=2").unwrap(), ("beta".into(), 2.0));
         assert!(parse_param("beta").is_err());
+    }
+
+    /// Map origins and rendezvous points are often negative, and a
+    /// negative lease is the executive's to refuse by name: none of them is
+    /// taken for an option.
+    #[test]
+    fn negative_values_are_values() {
+        let line = "coordctl missions create --width 10 --height 10 --origin -5.5,-3 --rendezvous -1,-2 \
+                    --lease -1 --stall -2 --resolution -0.1";
+        let cli = Cli::try_parse_from(line.split_whitespace()).unwrap();
+        let Command::Missions {
+            command: Some(MissionCommand::Create { origin, rendezvous, lease, stall, resolution, .. }),
+        } = cli.command
+        else {
+            panic!("{:?}", cli.command)
+        };
+        let (origin, rendezvous) = (origin.unwrap(), rendezvous.unwrap());
+        assert_eq!((origin.x, origin.y, rendezvous.x, rendezvous.y), (-5.5, -3.0, -1.0, -2.0));
+        assert_eq!((lease, stall, resolution), (Some(-1.0), Some(-2.0), Some(-0.1)));
     }
 
     #[test]

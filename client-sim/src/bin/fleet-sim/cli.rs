@@ -282,7 +282,7 @@ pub(crate) struct RunArgs {
     #[arg(long = "model")]
     pub(crate) models: Vec<String>,
     /// Start: `auto` (roomiest cell), `random` (seeded), or `x,y` in metres.
-    #[arg(long, default_value = "auto")]
+    #[arg(long, default_value = "auto", allow_hyphen_values = true)]
     pub(crate) start: String,
     /// `together` (packed on distinct free cells around the start) or `spread` (each at a random cell).
     #[arg(long, default_value = "together")]
@@ -422,4 +422,24 @@ pub(crate) fn parse_model(s: &str, base: RobotModel) -> anyhow::Result<RobotMode
         }
     }
     Ok(model)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Maps' origins are often negative (the nav2 ones are), so a start
+    /// in metres may be too; it is a value, not an option.
+    #[test]
+    fn a_start_may_be_negative() {
+        let cli = Cli::try_parse_from("fleet-sim run --map m.yaml --start -3.5,-2".split_whitespace()).unwrap();
+        let Command::Run(run) = cli.command else { panic!("{:?}", cli.command) };
+        assert_eq!(parse_start(&run.start).unwrap(), StartChoice::At(Point2::new(-3.5, -2.0)));
+    }
+
+    #[test]
+    fn the_command_line_is_consistent() {
+        use clap::CommandFactory;
+        Cli::command().debug_assert();
+    }
 }
