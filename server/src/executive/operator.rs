@@ -28,7 +28,7 @@ impl Executive {
         let mut mission = handle.lock().await;
         let changes = mission.prepare_policy(policy, actor, reason, Timestamp::now());
         self.operate(&handle, &mut mission, changes).await?;
-        tracing::info!(mission = mission_id, policy = mission.record().spec.policy.name(), actor, "policy changed");
+        tracing::info!(mission = mission_id, policy = mission.record().spec.policy.name(), actor = %actor, "policy changed");
         Ok(Self::summary(&mission))
     }
 
