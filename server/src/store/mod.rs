@@ -45,7 +45,8 @@ pub enum Location {
 impl Location {
     /// `text` as `--db` reads it: a `postgres://` or `postgresql://` URL is
     /// PostgreSQL; `sqlite:PATH`, `sqlite://PATH` or any other text is a
-    /// SQLite file.
+    /// SQLite file (another scheme's URL, such as `mysql://`, is refused
+    /// when it is opened).
     pub fn parse(text: &str) -> Self {
         if text.starts_with("postgres://") || text.starts_with("postgresql://") {
             return Self::Postgres(text.to_owned());
