@@ -120,8 +120,8 @@ async fn map_updates(
     missions.get_mission(pb::GetMissionRequest { mission_id: id }).await.unwrap().into_inner().map_updates
 }
 
-/// Shedding and connection settings out of range are refused at start,
-/// naming the flag.
+/// Shedding, connection and replica lease settings out of range are
+/// refused at start, naming the flag.
 #[test]
 fn absurd_shedding_and_connection_settings_refuse_to_start() {
     let dir = tempfile::tempdir().unwrap();
@@ -132,6 +132,9 @@ fn absurd_shedding_and_connection_settings_refuse_to_start() {
         // Every connection closed at once; no number at all.
         (["--idle-timeout", "1e-9"], "--idle-timeout must be a number of seconds from 1 to 1e6"),
         (["--idle-timeout", "NaN"], "--idle-timeout must be a number of seconds from 1 to 1e6"),
+        // Checked without --replica-id too (it was taken silently there).
+        (["--lease-period", "inf"], "--lease-period must be 0.3 to 600 seconds"),
+        (["--lease-grace", "1e9"], "--lease-grace must be 0 to 600 seconds"),
     ] {
         let (ok, stderr) = coordinator_exits(&args, &dir.path().join("t.db"));
         assert!(!ok, "{args:?} must not start");

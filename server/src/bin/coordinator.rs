@@ -191,14 +191,16 @@ fn shedding(target_ms: u64, interval_ms: u64) -> anyhow::Result<Option<QueueDela
 
 /// The replica settings the flags give, checked.
 fn replica_settings(args: &Args, tls: bool, bound: SocketAddr) -> anyhow::Result<Option<ReplicaSettings>> {
+    // Checked with or without --replica-id: a value that would be refused
+    // with it is not silently taken without it.
+    for (flag, seconds, min) in [("--lease-period", args.lease_period, 0.3), ("--lease-grace", args.lease_grace, 0.0)] {
+        anyhow::ensure!(seconds.is_finite() && (min..=600.0).contains(&seconds), "{flag} must be {min} to 600 seconds");
+    }
     let Some(id) = &args.replica_id else { return Ok(None) };
     anyhow::ensure!(
         !id.is_empty() && id.len() <= 128 && id.bytes().all(|b| b.is_ascii_graphic()),
         "--replica-id must be 1 to 128 printable ASCII characters without spaces"
     );
-    for (flag, seconds, min) in [("--lease-period", args.lease_period, 0.3), ("--lease-grace", args.lease_grace, 0.0)] {
-        anyhow::ensure!(seconds.is_finite() && (min..=600.0).contains(&seconds), "{flag} must be {min} to 600 seconds");
-    }
     let advertise = match &args.advertise {
         Some(url) => url.clone(),
         None => {
