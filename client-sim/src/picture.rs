@@ -22,6 +22,18 @@ pub const PALETTE: [[u8; 3]; 10] = [
     [170, 110, 40],
 ];
 
+/// Most pixels a picture has (300 MB of RGB): a large mission's map asked
+/// for at many pixels per cell would otherwise take tens of gigabytes.
+const MOST_PIXELS: u64 = 100_000_000;
+
+/// Pixels per cell for a picture of `width` × `height` cells whose longer
+/// side is about `target_px` (see [`Picture::new`]).
+fn scale(width: u32, height: u32, target_px: u32) -> u32 {
+    let cells = u64::from(width) * u64::from(height);
+    let fitting = (1..=16u32).rev().find(|&s| cells * u64::from(s * s) <= MOST_PIXELS).unwrap_or(1);
+    (target_px / width.max(height).max(1)).clamp(1, fitting)
+}
+
 /// A picture of a grid, one square of `scale` pixels per cell, y up.
 #[derive(Debug, Clone)]
 pub struct Picture {
@@ -32,10 +44,10 @@ pub struct Picture {
 
 impl Picture {
     /// A picture of `frame` with cells drawn by `colour`, scaled so the
-    /// longer side is about `target_px` pixels.
+    /// longer side is about `target_px` pixels: from 1 to 16 pixels per
+    /// cell, and fewer where the picture would pass [`MOST_PIXELS`].
     pub fn new(frame: GridFrame, target_px: u32, colour: impl Fn(Cell) -> [u8; 3]) -> Self {
-        let longest = frame.width.max(frame.height).max(1);
-        let scale = (target_px / longest).clamp(1, 16);
+        let scale = scale(frame.width, frame.height, target_px);
         let mut image = RgbImage::new(frame.width * scale, frame.height * scale);
         for cell in frame.bounds().cells() {
             let c = colour(cell);
@@ -103,4 +115,21 @@ impl Picture {
 pub fn segment_tint(label: u32) -> [u8; 3] {
     let [r, g, b] = PALETTE[(label as usize) % PALETTE.len()];
     [(200 + r / 5), (200 + g / 5), (200 + b / 5)]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The longer side comes near the size asked for, within 1 to 16
+    /// pixels per cell, and never past the pixel budget: the largest
+    /// mission at 20 pixels per cell would be 19 GB of RGB.
+    #[test]
+    fn pictures_scale_within_the_pixel_budget() {
+        assert_eq!(scale(100, 50, 1200), 12);
+        assert_eq!(scale(100, 50, 10), 1);
+        assert_eq!(scale(100, 50, 100_000), 16);
+        assert_eq!(scale(20_000, 1_250, 400_000), 2);
+        assert_eq!(scale(20_000, 20_000, u32::MAX), 1, "over the budget at one pixel per cell, still drawn");
+    }
 }

@@ -149,7 +149,7 @@ pub(crate) enum MapCommand {
         mission: u64,
         #[arg(long)]
         png: PathBuf,
-        /// Size of the longer side, pixels.
+        /// Size of the longer side, pixels (from 1 to 16 per cell, and at most 100 megapixels in all).
         #[arg(long, default_value_t = 1200)]
         px: u32,
         /// Tint the segmentation's segments.
