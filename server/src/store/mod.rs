@@ -29,6 +29,8 @@ pub mod sql;
 pub mod sqlite;
 #[cfg(test)]
 mod suite;
+#[cfg(test)]
+mod tests;
 
 pub use postgres::PostgresStore;
 pub use sqlite::SqliteStore;
@@ -40,19 +42,26 @@ pub enum Location {
     Sqlite(std::path::PathBuf),
     /// A `postgres://` URL.
     Postgres(String),
+    /// The URL of a database this executive has no store for (`mysql://…`):
+    /// refused when opened, and shown without its password.
+    Unsupported(String),
 }
 
 impl Location {
     /// `text` as `--db` reads it: a `postgres://` or `postgresql://` URL is
-    /// PostgreSQL; `sqlite:PATH`, `sqlite://PATH` or any other text is a
-    /// SQLite file (another scheme's URL, such as `mysql://`, is refused
-    /// when it is opened).
+    /// PostgreSQL; `sqlite:PATH`, `sqlite://PATH` or any text that is not a
+    /// URL is a SQLite file; another scheme's URL is [`Self::Unsupported`].
     pub fn parse(text: &str) -> Self {
         if text.starts_with("postgres://") || text.starts_with("postgresql://") {
             return Self::Postgres(text.to_owned());
         }
-        let path = text.strip_prefix("sqlite://").or_else(|| text.strip_prefix("sqlite:")).unwrap_or(text);
-        Self::Sqlite(path.into())
+        if let Some(path) = text.strip_prefix("sqlite://").or_else(|| text.strip_prefix("sqlite:")) {
+            return Self::Sqlite(path.into());
+        }
+        match text.split_once("://") {
+            Some((scheme, _)) if is_url_scheme(scheme) => Self::Unsupported(text.to_owned()),
+            _ => Self::Sqlite(text.into()),
+        }
     }
 
     /// Opens the store, with its commit latency counted in `metrics`: for
@@ -67,8 +76,22 @@ impl Location {
         Ok(match self {
             Self::Sqlite(path) => std::sync::Arc::new(SqliteStore::open_measured(path, durability, metrics).await?),
             Self::Postgres(url) => std::sync::Arc::new(PostgresStore::open(url, shared, metrics).await?),
+            Self::Unsupported(url) => {
+                let scheme = url.split_once("://").map_or("", |(scheme, _)| scheme);
+                return Err(StoreError::Path(format!(
+                    "{scheme}:// is not a store this executive has: give a SQLite file or a postgres:// URL"
+                )));
+            }
         })
     }
+}
+
+/// Whether `text` could be a URL's scheme (RFC 3986: a letter, then letters,
+/// digits, `+`, `-` or `.`), as in `mysql://`.
+fn is_url_scheme(text: &str) -> bool {
+    let mut chars = text.chars();
+    chars.next().is_some_and(|c| c.is_ascii_alphabetic())
+        && chars.all(|c| c.is_ascii_alphanumeric() || matches!(c, '+' | '-' | '.'))
 }
 
 impl std::str::FromStr for Location {
@@ -84,7 +107,7 @@ impl std::fmt::Display for Location {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Self::Sqlite(path) => write!(f, "{}", path.display()),
-            Self::Postgres(url) => f.write_str(&postgres::without_password(url)),
+            Self::Postgres(url) | Self::Unsupported(url) => f.write_str(&postgres::without_password(url)),
         }
     }
 }

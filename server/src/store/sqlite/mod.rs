@@ -160,9 +160,6 @@ fn check_path(path: &Path) -> Result<(), StoreError> {
     if text.is_empty() || text == ":memory:" || text.starts_with("file:") || text.contains("mode=memory") {
         return bad("the executive keeps everything it acknowledges in a database file: give a file path".to_owned());
     }
-    if let Some((scheme, _)) = text.split_once("://").filter(|(s, _)| is_url_scheme(s)) {
-        return bad(format!("{scheme}:// is not a store this executive has: give a SQLite file or a postgres:// URL"));
-    }
     if path.is_dir() {
         return bad("is a folder; give a file in it (created if missing)".to_owned());
     }
@@ -175,14 +172,6 @@ fn check_path(path: &Path) -> Result<(), StoreError> {
         Some(dir) if !dir.is_dir() => bad(format!("the folder {} does not exist", dir.display())),
         _ => Ok(()),
     }
-}
-
-/// Whether `text` could be a URL's scheme (RFC 3986: a letter, then letters,
-/// digits, `+`, `-` or `.`), as in `mysql://`.
-fn is_url_scheme(text: &str) -> bool {
-    let mut chars = text.chars();
-    chars.next().is_some_and(|c| c.is_ascii_alphabetic())
-        && chars.all(|c| c.is_ascii_alphanumeric() || matches!(c, '+' | '-' | '.'))
 }
 
 #[cfg(test)]
