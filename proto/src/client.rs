@@ -85,7 +85,8 @@ pub fn status_line(status: &tonic::Status) -> String {
 fn mismatch_hint(failure: &str) -> Option<&'static str> {
     const NOT_OUR_CA: &str = "the executive's certificate is not signed by the CA given with --tls-ca";
     const PLAINTEXT_TO_TLS: &str = "if the executive there serves TLS, use https://";
-    const HINTS: [(&str, &str); 7] = [
+    const NOT_ITS_NAME: &str = "the executive's certificate does not name the host of the URL";
+    const HINTS: [(&str, &str); 8] = [
         // rustls read a plaintext HTTP/2 frame where a TLS record belonged.
         ("InvalidContentType", "the executive there does not serve TLS: use http://"),
         // A TLS server closes on a plaintext preface, before our writes end
@@ -99,7 +100,9 @@ fn mismatch_hint(failure: &str) -> Option<&'static str> {
         ("UnknownIssuer", NOT_OUR_CA),
         // A CA of the same name as the issuer, but another key.
         ("BadSignature", NOT_OUR_CA),
-        ("NotValidForName", "the executive's certificate does not name the host of the URL"),
+        // rustls writes the error with the names in it, and without them as its variant's name.
+        ("not valid for name", NOT_ITS_NAME),
+        ("NotValidForName", NOT_ITS_NAME),
     ];
     HINTS.iter().find(|(words, _)| failure.contains(words)).map(|(_, hint)| *hint)
 }
@@ -221,6 +224,20 @@ mod tests {
             "`http://a\\u{1}b` is not a URL; give http://HOST:PORT or https://HOST:PORT"
         );
         assert!(endpoint("htp://x", None).is_err());
+    }
+
+    /// The words rustls 0.23 writes for a certificate issued to another
+    /// host, with and without the names, both get the hint (the hint once
+    /// read "NotValidForName" only, which the first never contains).
+    #[test]
+    fn a_certificate_for_another_host_is_named_as_such() {
+        let with_names = "invalid peer certificate: certificate not valid for name \"127.0.0.1\"; \
+                          certificate is only valid for DnsName(\"example.org\")";
+        for failure in [with_names, "invalid peer certificate: NotValidForName"] {
+            let hint = mismatch_hint(failure);
+            assert_eq!(hint, Some("the executive's certificate does not name the host of the URL"), "{failure}");
+        }
+        assert_eq!(mismatch_hint("tcp connect error: Connection refused (os error 111)"), None);
     }
 
     /// The hint comes from the network: anything but a number of

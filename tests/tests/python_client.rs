@@ -6,6 +6,7 @@
 //! it says it is skipped. Where `EXPLORATION_POSTGRES_URL` names a
 //! PostgreSQL server, the client's replica test gets a fresh database of it
 //! (`EXPLORATION_REPLICAS_DB`); only that test may be skipped without one.
+//! The TLS tests get certificates made here (`EXPLORATION_TLS_DIR`).
 
 mod common;
 
@@ -22,12 +23,15 @@ async fn the_python_client_passes_its_tests_against_the_real_executive() {
         return;
     };
     let replicas_db = common::postgres_database("python_replicas").await;
+    let certificates = tempfile::tempdir().unwrap();
+    common::Pki::new(certificates.path());
     let repository = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let mut pytest = Command::new(&python);
     pytest
         .args(["-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider", "clients/python/tests"])
         .current_dir(&repository)
-        .env("COORDINATOR_BIN", common::binary("coordinator"));
+        .env("COORDINATOR_BIN", common::binary("coordinator"))
+        .env("EXPLORATION_TLS_DIR", certificates.path());
     if let Some(url) = &replicas_db {
         pytest.env("EXPLORATION_REPLICAS_DB", url);
     }

@@ -13,6 +13,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import grpc
@@ -49,22 +50,51 @@ def free_port() -> int:
             return port
 
 
+@dataclass(frozen=True)
+class TlsFiles:
+    """Certificates made by the Rust test that runs these (rcgen): a CA, the
+    executive's certificate for 127.0.0.1 signed by it, and a second CA that
+    signed nothing here."""
+
+    ca: Path
+    server_cert: Path
+    server_key: Path
+    other_ca: Path
+
+    @staticmethod
+    def given() -> TlsFiles:
+        folder = os.environ.get("EXPLORATION_TLS_DIR")
+        if not folder:
+            pytest.skip("SKIPPED: the TLS tests need EXPLORATION_TLS_DIR (tests/tests/python_client.rs makes one)")
+        path = Path(folder)
+        return TlsFiles(path / "ca.pem", path / "server.pem", path / "server.key", path / "other-ca.pem")
+
+
 class Coordinator:
     """One coordinator process; restartable on the same port and database."""
 
-    def __init__(self, folder: Path, token: str | None, flags: Sequence[str] = ()) -> None:
+    def __init__(
+        self, folder: Path, token: str | None, flags: Sequence[str] = (), *, tls: TlsFiles | None = None
+    ) -> None:
         self.binary = coordinator_binary()
         self.port = free_port()
         self.db = folder / "coordinator.db"
         self.log = folder / "coordinator.log"
         self.token = token
         self.flags = list(flags)
+        self.tls = tls
+        if tls is not None:
+            self.flags += ["--tls-cert", str(tls.server_cert), "--tls-key", str(tls.server_key)]
         self.metrics_url: str | None = None
         self.process: subprocess.Popen[bytes] | None = None
 
     @property
     def address(self) -> str:
         return f"127.0.0.1:{self.port}"
+
+    @property
+    def url(self) -> str:
+        return f"{'https' if self.tls else 'http'}://{self.address}"
 
     def start(self) -> None:
         command = [str(self.binary), "--listen", self.address, "--db", str(self.db)]
@@ -77,7 +107,12 @@ class Coordinator:
         # A subchannel of its own: gRPC shares subchannels between channels of
         # one address, and one the tests' clients left in reconnect backoff
         # (after a kill) must not decide when this probe sees the server.
-        channel = grpc.insecure_channel(self.address, options=[("grpc.use_local_subchannel_pool", 1)])
+        options = [("grpc.use_local_subchannel_pool", 1)]
+        if self.tls is None:
+            channel = grpc.insecure_channel(self.address, options=options)
+        else:
+            credentials = grpc.ssl_channel_credentials(root_certificates=self.tls.ca.read_bytes())
+            channel = grpc.secure_channel(self.address, credentials, options=options)
         try:
             grpc.channel_ready_future(channel).result(timeout=30)
         finally:
@@ -112,8 +147,10 @@ class Coordinator:
             self.process = None
 
 
-def serve(folder: Path, token: str | None, flags: Sequence[str] = ()) -> Iterator[Coordinator]:
-    c = Coordinator(folder, token, flags)
+def serve(
+    folder: Path, token: str | None, flags: Sequence[str] = (), *, tls: TlsFiles | None = None
+) -> Iterator[Coordinator]:
+    c = Coordinator(folder, token, flags, tls=tls)
     c.start()
     try:
         yield c
@@ -125,6 +162,14 @@ def serve(folder: Path, token: str | None, flags: Sequence[str] = ()) -> Iterato
 def coordinator(tmp_path: Path) -> Iterator[Coordinator]:
     """An executive that checks tokens (operator token: TOKEN)."""
     yield from serve(tmp_path, TOKEN)
+
+
+@pytest.fixture
+def tls_coordinator(tmp_path: Path) -> Iterator[Coordinator]:
+    """An executive that checks tokens and serves TLS only (see :class:`TlsFiles`)."""
+    folder = tmp_path / "tls"  # beside another fixture's executive
+    folder.mkdir()
+    yield from serve(folder, TOKEN, tls=TlsFiles.given())
 
 
 @pytest.fixture

@@ -319,7 +319,11 @@ impl Pki {
         let other = CertifiedIssuer::self_signed(ca_params(), KeyPair::generate().unwrap()).unwrap();
         let leaf = |names: Vec<String>| {
             let key = KeyPair::generate().unwrap();
-            let cert = CertificateParams::new(names).unwrap().signed_by(&key, &ca).unwrap();
+            let mut params = CertificateParams::new(names.clone()).unwrap();
+            // A subject of its own: OpenSSL (the Python client's gRPC) takes
+            // a certificate named as its issuer for a self-signed one.
+            params.distinguished_name.push(rcgen::DnType::CommonName, names[0].clone());
+            let cert = params.signed_by(&key, &ca).unwrap();
             (cert.pem(), key.serialize_pem())
         };
         let (server_cert, server_key) = leaf(vec!["127.0.0.1".into(), "localhost".into()]);

@@ -162,9 +162,13 @@ class Executive:
                     continue
                 if error.code() != grpc.StatusCode.UNAVAILABLE:
                     raise
+                misconfigured = self._replicas.misconfigured(error)
+                if misconfigured is not None:
+                    raise misconfigured
+                explained = self._replicas.explained(error)
                 named = self._replicas.follow(error)
                 if (not named and not idempotent) or time.monotonic() >= deadline:
-                    raise
+                    raise explained
                 # A holder named for the first time is asked at once; a dead
                 # holder the others still name (its lease has not run out)
                 # and an executive that does not answer are asked again
@@ -223,7 +227,10 @@ class Executive:
     def watch_mission(self, mission_id: int) -> Iterator[pb.MissionView]:
         """The mission and its robots each time they change (until cancelled)."""
         request = pb.WatchMissionRequest(mission_id=mission_id)
-        yield from self.missions.WatchMission(request, metadata=self.metadata)
+        try:
+            yield from self.missions.WatchMission(request, metadata=self.metadata)
+        except grpc.RpcError as error:
+            raise self._replicas.explained(error)
 
     def override_robot(
         self,
@@ -409,6 +416,9 @@ class Robot:
                     return
                 if error.code() not in RETRYABLE:
                     raise
+                misconfigured = self._session._replicas.misconfigured(error)
+                if misconfigured is not None:
+                    raise misconfigured
                 if self._session._replicas.follow(error):
                     continue  # another replica holds the mission: ask it at once
             finally:

@@ -19,6 +19,7 @@ from urllib.parse import urlparse
 import grpc
 
 from ._proto.exploration.v1 import exploration_pb2_grpc as rpc
+from .mismatch import Misconfigured, explained, hint_for
 
 #: The response metadata naming the replica that holds a mission.
 OWNER_METADATA = "exploration-owner"
@@ -114,6 +115,25 @@ class Replicas:
     @property
     def fleet(self) -> rpc.FleetStub:
         return self._open(self.current)[2]
+
+    @property
+    def tls(self) -> bool:
+        """Whether the replica the calls go to now is spoken to over TLS."""
+        return _target(self.current)[2]
+
+    def explained(self, error: grpc.RpcError) -> grpc.RpcError:
+        """``error`` with what to change, where it came of TLS and plaintext
+        mixed up or of a certificate that does not fit (see :mod:`.mismatch`)."""
+        return explained(error, self.tls)
+
+    def misconfigured(self, error: grpc.RpcError) -> Misconfigured | None:
+        """``error`` explained, when it is a TLS handshake that failed and no
+        other address was given: asking again cannot help, so the caller
+        should not wait out its failover time."""
+        found = hint_for(error, self.tls)
+        if found is None or not found[1] or len(self.given) > 1:
+            return None
+        return Misconfigured(error, found[0])
 
     def follow(self, error: grpc.RpcError) -> bool:
         """After an UNAVAILABLE answer: ``True`` when it named a holder other
