@@ -2,6 +2,7 @@
 //! (`GET /metrics`) and the live mission view ([`view`]). Both read through
 //! the executive like any other client. HTTPS ([`tls`]) when gRPC has TLS.
 
+mod cells;
 mod tls;
 mod view;
 

@@ -27,6 +27,7 @@ use tokio_util::sync::CancellationToken;
 use exploration::grid::{CellClass, classify};
 
 use super::Shared;
+use super::cells::{Classes, MOST_SEGMENTATION_RUNS, each_run, runs};
 use crate::auth::Caller;
 use crate::domain::{MissionEvent, TaskRecord};
 use crate::error::Error;
@@ -225,21 +226,30 @@ impl Frame {
                 && Some(stored.computed_at.millis()) != cursor.segmentation_computed
             {
                 cursor.segmentation_computed = Some(stored.computed_at.millis());
+                let labels = &stored.segmentation.labels;
+                let fragmented = each_run(labels.iter()).nth(MOST_SEGMENTATION_RUNS).is_some();
                 segmentation = Some(SegmentationJson {
                     computed_at_ms: stored.computed_at.millis(),
                     width: stored.segmentation.frame.width,
                     height: stored.segmentation.frame.height,
-                    runs: runs(stored.segmentation.labels.iter().copied()),
+                    runs: if fragmented { Vec::new() } else { runs(labels.iter().copied()) },
+                    fragmented,
                 });
             }
         }
         Ok(Self { mission, robots, map: MapJson::from(changes), tasks, events, segmentation })
     }
 
-    /// The frame as one server-sent event.
+    /// The frame as one server-sent event, written once (it may carry
+    /// megabytes of map). JSON escapes line breaks, so it is one data line.
     fn event(&self) -> Bytes {
-        let data = serde_json::to_string(self).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"));
-        Bytes::from(format!("event: update\ndata: {data}\n\n"))
+        let mut event = b"event: update\ndata: ".to_vec();
+        if let Err(e) = serde_json::to_writer(&mut event, self) {
+            event.truncate("event: update\ndata: ".len());
+            event.extend_from_slice(serde_json::json!({ "error": e.to_string() }).to_string().as_bytes());
+        }
+        event.extend_from_slice(b"\n\n");
+        Bytes::from(event)
     }
 }
 
@@ -324,10 +334,10 @@ impl From<&RobotSummary> for RobotJson {
 }
 
 /// Cell classes as the page draws them.
-const UNKNOWN: u32 = 0;
-const FREE: u32 = 1;
-const OCCUPIED: u32 = 2;
-const UNCERTAIN: u32 = 3;
+const UNKNOWN: u8 = 0;
+const FREE: u8 = 1;
+const OCCUPIED: u8 = 2;
+const UNCERTAIN: u8 = 3;
 
 #[derive(Debug, Serialize)]
 struct MapJson {
@@ -344,13 +354,14 @@ struct PatchJson {
     y: i32,
     width: u32,
     height: u32,
-    /// `[class, count, class, count, ...]`.
-    runs: Vec<u32>,
+    /// `runs` or `packed` (see [`Classes`]).
+    #[serde(flatten)]
+    cells: Classes,
 }
 
 impl From<MapChanges> for MapJson {
     fn from(changes: MapChanges) -> Self {
-        let class = |v: u8| match classify(v) {
+        let class = |v: &u8| match classify(*v) {
             CellClass::Unknown => UNKNOWN,
             CellClass::Free => FREE,
             CellClass::Occupied => OCCUPIED,
@@ -364,24 +375,11 @@ impl From<MapChanges> for MapJson {
                 y: rect.y,
                 width: rect.width,
                 height: rect.height,
-                runs: runs(cells.into_iter().map(class)),
+                cells: Classes::encode(&cells.iter().map(class).collect::<Vec<u8>>()),
             })
             .collect();
         Self { version: changes.version, full: changes.full, patches }
     }
-}
-
-/// `[value, count, value, count, ...]`: a building's map is long runs of
-/// one class, so this is far smaller than one number per cell.
-fn runs(values: impl Iterator<Item = u32>) -> Vec<u32> {
-    let mut out = Vec::new();
-    for v in values {
-        match out.len() {
-            n if n >= 2 && out[n - 2] == v && out[n - 1] < u32::MAX => out[n - 1] += 1,
-            _ => out.extend([v, 1]),
-        }
-    }
-    out
 }
 
 #[derive(Debug, Serialize)]
@@ -434,6 +432,9 @@ struct SegmentationJson {
     height: u32,
     /// `[label, count, ...]` row-major from the bottom row; 0: no segment.
     runs: Vec<u32>,
+    /// More than [`MOST_SEGMENTATION_RUNS`] runs: none are sent (the map
+    /// behind it is a pattern no building makes).
+    fragmented: bool,
 }
 
 fn json(value: &impl Serialize) -> Response {
@@ -458,15 +459,4 @@ fn error_response(error: Error) -> Response {
     };
     let body = serde_json::json!({ "error": error.to_string() }).to_string();
     (status, [(header::CONTENT_TYPE, "application/json")], body).into_response()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::runs;
-
-    #[test]
-    fn runs_count_repeats() {
-        assert_eq!(runs([1, 1, 1, 0, 2, 2].into_iter()), vec![1, 3, 0, 1, 2, 2]);
-        assert_eq!(runs(std::iter::empty()), Vec::<u32>::new());
-    }
 }
