@@ -104,6 +104,15 @@ def test_malformed_grids_are_refused_before_anything_is_sent() -> None:
         patch_from_grid(np.array([[0.5]]), 0, 0, encoding="occupancy_percent")
 
 
+def test_the_map_of_a_large_mission_is_read_whole(open_coordinator: Coordinator) -> None:
+    # 4.4 million cells: more than gRPC's default 4 MB a message.
+    with Executive(open_coordinator.address) as executive:
+        mission = executive.create_mission("large", frame(2100, 2100), policy="nearest")
+        snapshot = executive.missions.GetMap(pb.GetMapRequest(mission_id=mission.id))
+        assert len(snapshot.cells) == 2100 * 2100
+        assert set(snapshot.cells) == {255}
+
+
 def test_a_ros_occupancy_grid_is_sent_as_it_is(open_coordinator: Coordinator) -> None:
     with Executive(open_coordinator.address) as executive:
         mission = executive.create_mission("ros grid", frame(20, 10), policy="nearest")

@@ -21,6 +21,11 @@ import grpc
 from ._proto.exploration.v1 import exploration_pb2_grpc as rpc
 from .mismatch import Misconfigured, explained, hint_for
 
+#: The largest message read, as the project's Rust clients read
+#: (``exploration_proto::MAX_MESSAGE_BYTES``): gRPC's default of 4 MB would
+#: refuse the map of a mission over 4 million cells (2 100 × 2 100).
+MAX_MESSAGE_BYTES = 64 * 1024 * 1024
+
 #: The response metadata naming the replica that holds a mission.
 OWNER_METADATA = "exploration-owner"
 
@@ -100,11 +105,12 @@ class Replicas:
     def _open(self, address: str) -> tuple[grpc.Channel, rpc.MissionsStub, rpc.FleetStub]:
         if address not in self._channels:
             target, _, tls = _target(address)
+            options = [("grpc.max_receive_message_length", MAX_MESSAGE_BYTES)]
             if tls:
                 credentials = grpc.ssl_channel_credentials(root_certificates=self.root_certificates)
-                channel = grpc.secure_channel(target, credentials)
+                channel = grpc.secure_channel(target, credentials, options=options)
             else:
-                channel = grpc.insecure_channel(target)
+                channel = grpc.insecure_channel(target, options=options)
             self._channels[address] = (channel, rpc.MissionsStub(channel), rpc.FleetStub(channel))
         return self._channels[address]
 
