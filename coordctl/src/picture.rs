@@ -35,9 +35,16 @@ pub fn render(
         labels.and_then(|l| l.get(index * 4..index * 4 + 4)).map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
     };
     let mut is_frontier = vec![false; grid.len()];
-    for point in &snapshot.frontier {
-        if let Some(cell) = grid.cell_from_world(&Point2::new(point.x, point.y)) {
-            is_frontier[grid.index(cell)] = true;
+    if snapshot.frontier_mask.len() == grid.len().div_ceil(8) {
+        for (index, flag) in is_frontier.iter_mut().enumerate() {
+            *flag = snapshot.frontier_mask[index / 8] >> (index % 8) & 1 == 1;
+        }
+    } else {
+        // An executive from before the mask lists every frontier cell.
+        for point in &snapshot.frontier {
+            if let Some(cell) = grid.cell_from_world(&Point2::new(point.x, point.y)) {
+                is_frontier[grid.index(cell)] = true;
+            }
         }
     }
     let mut picture = Picture::new(grid, target_px, |cell: Cell| {

@@ -392,3 +392,43 @@ async fn health_reflection_and_the_policy_list_answer() {
     assert_eq!(flags("burgard"), (false, false));
     exec.stop().await;
 }
+
+/// A map whose every third cell is frontier (the largest mission's would be
+/// 8 million cells) lists every frontier cell in `frontier_mask`, and only
+/// the first 100 000 as points: as points alone, that map made a message of
+/// 190 MB, which no client reads (the executive built it all the same).
+#[tokio::test]
+async fn the_map_of_a_fragmented_frontier_has_every_cell_in_its_mask_and_the_first_as_points() {
+    let dir = tempfile::tempdir().unwrap();
+    let exec = TestExecutive::start(&dir.path().join("x.db")).await;
+    let (mut missions, mut fleet) = (exec.missions(), exec.fleet());
+    let (width, height) = (1000, 600);
+    let mission = create_mission(&mut missions, width, height, "nearest").await;
+    let robot = register(&mut fleet, mission.id, "scout", 0.15, 0.05).await;
+    fleet.update_map(update(robot.id, 1, 0.15, 0.05, vec![common::fragmented_map(width, height)])).await.unwrap();
+
+    let map = missions.get_map(pb::GetMapRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    let mission = missions.get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    // Every free cell (class 1) has an unknown one (class 0) to its left or below.
+    let is_frontier = |x: u32, y: u32| common::fragmented_class(x, y) == 1;
+    let cells: Vec<(u32, u32)> = (0..height).flat_map(|y| (0..width).map(move |x| (x, y))).collect();
+    assert_eq!(map.frontier_mask.len(), cells.len().div_ceil(8));
+    for (k, &(x, y)) in cells.iter().enumerate() {
+        assert_eq!(map.frontier_mask[k / 8] >> (k % 8) & 1 == 1, is_frontier(x, y), "cell ({x}, {y})");
+    }
+    let frontier: Vec<(u32, u32)> = cells.iter().copied().filter(|&(x, y)| is_frontier(x, y)).collect();
+    assert_eq!(mission.frontier_cells, frontier.len() as u64);
+    assert!(frontier.len() > 150_000, "{}", frontier.len());
+    // The points: the first 100 000 frontier cells in row order, at their centres.
+    let frame = map.frame.unwrap();
+    let origin = frame.origin.unwrap();
+    let centre = |(x, y): (u32, u32)| {
+        (origin.x + (f64::from(x) + 0.5) * frame.resolution, origin.y + (f64::from(y) + 0.5) * frame.resolution)
+    };
+    assert_eq!(map.frontier.len(), 100_000);
+    for (point, &cell) in map.frontier.iter().zip(&frontier) {
+        let (x, y) = centre(cell);
+        assert!((point.x - x).abs() < 1e-9 && (point.y - y).abs() < 1e-9, "{point:?} is not cell {cell:?}");
+    }
+    exec.stop().await;
+}

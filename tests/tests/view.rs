@@ -195,22 +195,6 @@ async fn the_stream_sends_the_whole_map_first_then_only_the_cells_that_changed()
     exec.stop().await;
 }
 
-/// Cell (x, y) of the fragmented map below: its class cycles unknown (0),
-/// free (1), occupied (2) along the diagonals, so that no two neighbours in
-/// a row share one.
-fn fragmented_class(x: u32, y: u32) -> u8 {
-    ((x + y) % 3) as u8
-}
-
-/// A patch of the whole `width` × `height` map in the pattern of
-/// [`fragmented_class`].
-fn fragmented_map(width: u32, height: u32) -> pb::MapPatch {
-    let cells = (0..height).flat_map(|y| (0..width).map(move |x| fragmented_class(x, y)));
-    let (values, unknown): (Vec<f32>, Vec<u8>) =
-        cells.map(|class| ([0.5, 0.1, 0.9][usize::from(class)], u8::from(class == 0))).unzip();
-    pb::MapPatch { width, height, values, unknown, ..common::patch(0, 0, width, height, 0.5) }
-}
-
 /// A map a robot wrote with a class that changes at every cell goes to a
 /// viewer in two bits a cell, not as runs of one: the first event of every
 /// viewer carries the whole map, and as runs the largest mission's would
@@ -224,7 +208,10 @@ async fn a_fragmented_map_goes_to_a_viewer_in_a_third_of_a_byte_a_cell() {
     let (width, height) = (600, 400);
     let mission = common::create_mission(&mut missions, width, height, "nearest").await;
     let robot = common::register(&mut fleet, mission.id, "scout", 0.15, 0.05).await;
-    fleet.update_map(common::update(robot.id, 1, 0.15, 0.05, vec![fragmented_map(width, height)])).await.unwrap();
+    fleet
+        .update_map(common::update(robot.id, 1, 0.15, 0.05, vec![common::fragmented_map(width, height)]))
+        .await
+        .unwrap();
 
     let mut stream = Get::send(exec.http.unwrap(), &format!("/api/missions/{}/live", mission.id), None).await;
     assert_eq!(stream.status, 200);
@@ -238,7 +225,7 @@ async fn a_fragmented_map_goes_to_a_viewer_in_a_third_of_a_byte_a_cell() {
     let bytes = base64::engine::general_purpose::STANDARD.decode(packed).unwrap();
     for (k, (x, y)) in (0..height).flat_map(|y| (0..width).map(move |x| (x, y))).enumerate() {
         let sent = (bytes[k / 4] >> (2 * (k % 4))) & 3;
-        assert_eq!(sent, fragmented_class(x, y), "cell ({x}, {y})");
+        assert_eq!(sent, common::fragmented_class(x, y), "cell ({x}, {y})");
     }
     exec.stop().await;
 }
@@ -256,7 +243,10 @@ async fn the_page_draws_a_fragmented_map_cell_for_cell() {
     let (width, height) = (90, 70);
     let mission = common::create_mission(&mut missions, width, height, "nearest").await;
     let robot = common::register(&mut fleet, mission.id, "scout", 0.15, 0.05).await;
-    fleet.update_map(common::update(robot.id, 1, 0.15, 0.05, vec![fragmented_map(width, height)])).await.unwrap();
+    fleet
+        .update_map(common::update(robot.id, 1, 0.15, 0.05, vec![common::fragmented_map(width, height)]))
+        .await
+        .unwrap();
 
     let url = format!("http://{}/#mission={}", exec.http.unwrap(), mission.id);
     let shown = tokio::task::block_in_place(|| {
@@ -267,7 +257,7 @@ async fn the_page_draws_a_fragmented_map_cell_for_cell() {
         browser.evaluate("Array.from(state.classes).join('')").as_str().unwrap_or_default().to_owned()
     });
     let expected: String =
-        (0..height).flat_map(|y| (0..width).map(move |x| char::from(b'0' + fragmented_class(x, y)))).collect();
+        (0..height).flat_map(|y| (0..width).map(move |x| char::from(b'0' + common::fragmented_class(x, y)))).collect();
     assert_eq!(shown, expected);
     exec.stop().await;
 }

@@ -55,13 +55,28 @@ pub struct RobotSummary {
     pub blacklisted: usize,
 }
 
+/// Frontier cells a [`MapView`] lists as points at most: the rest are in
+/// its mask. A map whose every third cell is frontier (8 million on the
+/// largest mission) would otherwise make a message of 190 MB, more than
+/// any client reads.
+pub const MOST_FRONTIER_POINTS: usize = 100_000;
+
+/// `flags` a bit each, flag k at bit k % 8 of byte k / 8.
+fn bits(flags: &[bool]) -> Vec<u8> {
+    flags.chunks(8).map(|eight| eight.iter().rev().fold(0u8, |byte, &f| (byte << 1) | u8::from(f))).collect()
+}
+
 /// A copy of a mission's fused map.
 #[derive(Debug, Clone)]
 pub struct MapView {
     /// The fused grid.
     pub grid: OccupancyGrid,
-    /// Frontier cell centres.
+    /// Frontier cell centres in row order, the first
+    /// [`MOST_FRONTIER_POINTS`] of them.
     pub frontier: Vec<Point2>,
+    /// Every frontier cell, a bit a cell, row-major, least significant
+    /// bit first.
+    pub frontier_mask: Vec<u8>,
     /// Robots and their targets.
     pub robots: Vec<RobotSummary>,
 }
@@ -189,9 +204,12 @@ impl Executive {
         let handle = self.mission_handle(mission_id).await?;
         let mission = handle.lock().await;
         let frame = mission.record().spec.frame;
+        let mask = mission.frontier().mask();
+        let in_row_order = mask.iter().enumerate().filter(|(_, f)| **f).map(|(i, _)| frame.cell(i));
         Ok(MapView {
             grid: mission.grid().clone(),
-            frontier: mission.frontier().cells().into_iter().map(|c| frame.world_from_cell(c)).collect(),
+            frontier: in_row_order.take(MOST_FRONTIER_POINTS).map(|c| frame.world_from_cell(c)).collect(),
+            frontier_mask: bits(mask),
             robots: Self::robot_summaries(&mission),
         })
     }

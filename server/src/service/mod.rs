@@ -198,6 +198,7 @@ impl Missions for ExplorationService {
             cells: map.grid.cells().iter().map(|&v| if v == UNKNOWN { 255 } else { v }).collect(),
             frontier: map.frontier.iter().map(|p| pb::Point { x: p.x, y: p.y }).collect(),
             robots: map.robots.iter().map(|r: &RobotSummary| r.into()).collect(),
+            frontier_mask: map.frontier_mask,
         }))
     }
 

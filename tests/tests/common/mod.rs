@@ -217,6 +217,23 @@ pub fn patch(x: u32, y: u32, width: u32, height: u32, p: f32) -> pb::MapPatch {
     }
 }
 
+/// Cell (x, y) of the fragmented map below (a map no building makes, and
+/// the worst for anything sized by runs or by frontier cells): its class cycles unknown (0),
+/// free (1), occupied (2) along the diagonals, so that no two neighbours in
+/// a row share one.
+pub fn fragmented_class(x: u32, y: u32) -> u8 {
+    ((x + y) % 3) as u8
+}
+
+/// A patch of the whole `width` × `height` map in the pattern of
+/// [`fragmented_class`].
+pub fn fragmented_map(width: u32, height: u32) -> pb::MapPatch {
+    let cells = (0..height).flat_map(|y| (0..width).map(move |x| fragmented_class(x, y)));
+    let (values, unknown): (Vec<f32>, Vec<u8>) =
+        cells.map(|class| ([0.5, 0.1, 0.9][usize::from(class)], u8::from(class == 0))).unzip();
+    pb::MapPatch { width, height, values, unknown, ..patch(0, 0, width, height, 0.5) }
+}
+
 pub fn update(robot_id: u64, seq: u64, x: f64, y: f64, patches: Vec<pb::MapPatch>) -> pb::UpdateMapRequest {
     pb::UpdateMapRequest { robot_id, seq, pose: Some(pb::Pose { x, y, theta: 0.0 }), patches, ..Default::default() }
 }
