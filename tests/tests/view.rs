@@ -195,6 +195,18 @@ async fn the_stream_sends_the_whole_map_first_then_only_the_cells_that_changed()
     exec.stop().await;
 }
 
+/// An executive with its live view, and the id of its one mission, whose
+/// robot has written [`common::fragmented_map`] over all of it.
+async fn with_a_fragmented_map(dir: &Path, width: u32, height: u32) -> (TestExecutive, u64) {
+    let exec = TestExecutive::start_with_http(coordinator::Config::new(dir.join("view.db"))).await;
+    let (mut missions, mut fleet) = (exec.missions(), exec.fleet());
+    let mission = common::create_mission(&mut missions, width, height, "nearest").await;
+    let robot = common::register(&mut fleet, mission.id, "scout", 0.15, 0.05).await;
+    let map = common::update(robot.id, 1, 0.15, 0.05, vec![common::fragmented_map(width, height)]);
+    fleet.update_map(map).await.unwrap();
+    (exec, mission.id)
+}
+
 /// A map a robot wrote with a class that changes at every cell goes to a
 /// viewer in two bits a cell, not as runs of one: the first event of every
 /// viewer carries the whole map, and as runs the largest mission's would
@@ -203,17 +215,9 @@ async fn the_stream_sends_the_whole_map_first_then_only_the_cells_that_changed()
 #[tokio::test]
 async fn a_fragmented_map_goes_to_a_viewer_in_a_third_of_a_byte_a_cell() {
     let dir = tempfile::tempdir().unwrap();
-    let exec = TestExecutive::start_with_http(coordinator::Config::new(dir.path().join("view.db"))).await;
-    let (mut missions, mut fleet) = (exec.missions(), exec.fleet());
     let (width, height) = (600, 400);
-    let mission = common::create_mission(&mut missions, width, height, "nearest").await;
-    let robot = common::register(&mut fleet, mission.id, "scout", 0.15, 0.05).await;
-    fleet
-        .update_map(common::update(robot.id, 1, 0.15, 0.05, vec![common::fragmented_map(width, height)]))
-        .await
-        .unwrap();
-
-    let mut stream = Get::send(exec.http.unwrap(), &format!("/api/missions/{}/live", mission.id), None).await;
+    let (exec, mission) = with_a_fragmented_map(dir.path(), width, height).await;
+    let mut stream = Get::send(exec.http.unwrap(), &format!("/api/missions/{mission}/live"), None).await;
     assert_eq!(stream.status, 200);
     let first = stream.next_event().await;
     let patch = &first["map"]["patches"][0];
@@ -238,17 +242,9 @@ async fn the_page_draws_a_fragmented_map_cell_for_cell() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let exec = TestExecutive::start_with_http(coordinator::Config::new(dir.path().join("view.db"))).await;
-    let (mut missions, mut fleet) = (exec.missions(), exec.fleet());
     let (width, height) = (90, 70);
-    let mission = common::create_mission(&mut missions, width, height, "nearest").await;
-    let robot = common::register(&mut fleet, mission.id, "scout", 0.15, 0.05).await;
-    fleet
-        .update_map(common::update(robot.id, 1, 0.15, 0.05, vec![common::fragmented_map(width, height)]))
-        .await
-        .unwrap();
-
-    let url = format!("http://{}/#mission={}", exec.http.unwrap(), mission.id);
+    let (exec, mission) = with_a_fragmented_map(dir.path(), width, height).await;
+    let url = format!("http://{}/#mission={mission}", exec.http.unwrap());
     let shown = tokio::task::block_in_place(|| {
         let mut browser = Browser::launch(&chromium, &dir.path().join("profile"));
         browser.open(&url);

@@ -343,8 +343,9 @@ const UNCERTAIN: u8 = 3;
 struct MapJson {
     version: u64,
     full: bool,
-    /// Changed rectangles; cells as runs of classes (0 unknown, 1 free,
-    /// 2 occupied, 3 uncertain), row-major from the bottom row.
+    /// Changed rectangles; cells as classes (0 unknown, 1 free, 2
+    /// occupied, 3 uncertain), row-major from the bottom row, in runs or
+    /// packed (see [`Classes`]).
     patches: Vec<PatchJson>,
 }
 
