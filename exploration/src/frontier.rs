@@ -138,7 +138,13 @@ impl FrontierMap {
 
     /// Every frontier cell, in row-major order.
     pub fn cells(&self) -> Vec<Cell> {
-        self.mask.iter().enumerate().filter(|(_, f)| **f).map(|(i, _)| self.frame.cell(i)).collect()
+        self.cells_in_row_order().collect()
+    }
+
+    /// The frontier cells in row-major order, one at a time: for a reader
+    /// that wants only the first few.
+    pub fn cells_in_row_order(&self) -> impl Iterator<Item = Cell> + '_ {
+        self.mask.iter().enumerate().filter(|(_, f)| **f).map(|(i, _)| self.frame.cell(i))
     }
 }
 

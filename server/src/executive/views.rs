@@ -204,12 +204,15 @@ impl Executive {
         let handle = self.mission_handle(mission_id).await?;
         let mission = handle.lock().await;
         let frame = mission.record().spec.frame;
-        let mask = mission.frontier().mask();
-        let in_row_order = mask.iter().enumerate().filter(|(_, f)| **f).map(|(i, _)| frame.cell(i));
+        let frontier = mission.frontier();
         Ok(MapView {
             grid: mission.grid().clone(),
-            frontier: in_row_order.take(MOST_FRONTIER_POINTS).map(|c| frame.world_from_cell(c)).collect(),
-            frontier_mask: bits(mask),
+            frontier: frontier
+                .cells_in_row_order()
+                .take(MOST_FRONTIER_POINTS)
+                .map(|c| frame.world_from_cell(c))
+                .collect(),
+            frontier_mask: bits(frontier.mask()),
             robots: Self::robot_summaries(&mission),
         })
     }
