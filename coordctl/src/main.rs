@@ -291,18 +291,25 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Map(MapCommand::Export { mission, png, px, segments }) => {
             let snapshot = api.get_map(pb::GetMapRequest { mission_id: mission }).await?.into_inner();
             let details = api.get_mission(pb::GetMissionRequest { mission_id: mission }).await?.into_inner();
-            let labels = if segments {
-                let request = pb::GetSegmentationRequest { mission_id: mission, include_labels: true };
-                Some(api.get_segmentation(request).await?.into_inner().labels)
-            } else {
-                None
-            };
+            let labels = if segments { segment_labels(&mut api, mission, snapshot.cells.len()).await? } else { None };
             let picture = picture::render(&snapshot, &details.forbidden_regions, labels.as_deref(), px)?;
             picture.save(&png).with_context(|| format!("cannot write {}", png.display()))?;
             out.done(&format!("wrote {}", png.display()))?;
         }
     }
     Ok(())
+}
+
+/// The segment label of each of a mission's `cells`, asked for as runs, the
+/// few kilobytes a building takes; per cell if its runs are too many to
+/// send. `None` when the mission has no segmentation.
+async fn segment_labels(api: &mut Missions, mission: u64, cells: usize) -> anyhow::Result<Option<Vec<u32>>> {
+    let ask = |label_runs| pb::GetSegmentationRequest { mission_id: mission, include_labels: true, label_runs };
+    let answer = match api.get_segmentation(ask(true)).await {
+        Err(status) if status.code() == tonic::Code::ResourceExhausted => api.get_segmentation(ask(false)).await,
+        answer => answer,
+    }?;
+    answer.into_inner().labels_per_cell(cells).map_err(|e| anyhow::anyhow!("the executive's segmentation: {e}"))
 }
 
 async fn mission_command(

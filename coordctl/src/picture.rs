@@ -14,11 +14,11 @@ const FRONTIER: [u8; 3] = [255, 140, 0];
 const FORBIDDEN: [u8; 3] = [220, 0, 0];
 
 /// Draws `snapshot` with `regions` outlined and, when given, the segment
-/// `labels` (little-endian u32 per cell) tinting the free space.
+/// `labels` (one per cell) tinting the free space.
 pub fn render(
     snapshot: &pb::MapSnapshot,
     regions: &[pb::Region],
-    labels: Option<&[u8]>,
+    labels: Option<&[u32]>,
     target_px: u32,
 ) -> anyhow::Result<Picture> {
     let frame = snapshot.frame.context("the executive sent a map without its frame")?;
@@ -31,9 +31,7 @@ pub fn render(
         frame.width,
         frame.height
     );
-    let label = |index: usize| -> u32 {
-        labels.and_then(|l| l.get(index * 4..index * 4 + 4)).map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-    };
+    let label = |index: usize| -> u32 { labels.and_then(|l| l.get(index)).copied().unwrap_or(0) };
     let mut is_frontier = vec![false; grid.len()];
     if snapshot.frontier_mask.len() == grid.len().div_ceil(8) {
         for (index, flag) in is_frontier.iter_mut().enumerate() {

@@ -21,17 +21,33 @@ pub const MAX_MESSAGE_BYTES: usize = 64 * 1024 * 1024;
 /// little-endian `u32`, row-major. The wire form of
 /// `SetGivenSegmentationRequest.label_runs`, and how the store keeps labels.
 pub mod label_runs {
+    /// Bytes a (label, run length) pair takes.
+    pub const PAIR_BYTES: usize = 8;
+
     /// The runs of `labels`.
     pub fn encode(labels: &[u32]) -> Vec<u8> {
-        let mut out = Vec::new();
-        let mut rest = labels;
-        while let Some(&label) = rest.first() {
-            let run = rest.iter().take_while(|&&l| l == label).count().min(u32::MAX as usize);
+        let mut out = Vec::with_capacity(runs(labels).count() * PAIR_BYTES);
+        for (label, run) in runs(labels) {
             out.extend_from_slice(&label.to_le_bytes());
-            out.extend_from_slice(&(run as u32).to_le_bytes());
-            rest = &rest[run..];
+            out.extend_from_slice(&run.to_le_bytes());
         }
         out
+    }
+
+    /// Bytes `encode(labels)` takes, without making them.
+    pub fn encoded_len(labels: &[u32]) -> usize {
+        runs(labels).count() * PAIR_BYTES
+    }
+
+    /// `(label, run length)` for each run, runs of at most `u32::MAX`.
+    fn runs(labels: &[u32]) -> impl Iterator<Item = (u32, u32)> + '_ {
+        let mut rest = labels;
+        std::iter::from_fn(move || {
+            let &label = rest.first()?;
+            let run = rest.iter().take_while(|&&l| l == label).count().min(u32::MAX as usize);
+            rest = &rest[run..];
+            Some((label, run as u32))
+        })
     }
 
     /// The labels of `len` cells. Runs that are not whole pairs, or that
@@ -55,6 +71,24 @@ pub mod label_runs {
             labels.extend(std::iter::repeat_n(label, run));
         }
         Ok(labels)
+    }
+}
+
+impl v1::Segmentation {
+    /// The label of each of the `cells` of the mission's map, from whichever
+    /// form the executive sent (`label_runs`, or `labels` from an executive
+    /// that predates them); `None` when it sent neither.
+    pub fn labels_per_cell(&self, cells: usize) -> Result<Option<Vec<u32>>, String> {
+        if !self.label_runs.is_empty() {
+            return label_runs::decode(&self.label_runs, cells).map(Some).map_err(|e| format!("label_runs {e}"));
+        }
+        if self.labels.is_empty() {
+            return Ok(None);
+        }
+        if self.labels.len() != cells * 4 {
+            return Err(format!("labels hold {} bytes, not 4 for each of the map's {cells} cells", self.labels.len()));
+        }
+        Ok(Some(self.labels.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()))
     }
 }
 
@@ -139,3 +173,34 @@ impl tonic::service::Interceptor for Bearer {
 pub mod client;
 pub mod files;
 pub mod replicas;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn label_runs_come_back_as_the_labels_they_were_made_from() {
+        let labels = [0, 0, 7, 7, 7, 0, 3, 3, 9];
+        let runs = label_runs::encode(&labels);
+        assert_eq!(runs.len(), 5 * label_runs::PAIR_BYTES);
+        assert_eq!(label_runs::encoded_len(&labels), runs.len());
+        assert_eq!(label_runs::decode(&runs, labels.len()).unwrap(), labels);
+        assert!(label_runs::decode(&runs, labels.len() + 1).unwrap_err().contains("cover 9 cells"));
+        assert_eq!(label_runs::encoded_len(&[]), 0);
+    }
+
+    #[test]
+    fn a_segmentation_gives_the_same_labels_in_either_form() {
+        let labels = vec![0, 1, 1, 2, 2, 2];
+        let per_cell = v1::Segmentation {
+            labels: labels.iter().flat_map(|l: &u32| l.to_le_bytes()).collect(),
+            ..Default::default()
+        };
+        let as_runs = v1::Segmentation { label_runs: label_runs::encode(&labels), ..Default::default() };
+        assert_eq!(per_cell.labels_per_cell(6).unwrap(), Some(labels.clone()));
+        assert_eq!(as_runs.labels_per_cell(6).unwrap(), Some(labels));
+        assert_eq!(v1::Segmentation::default().labels_per_cell(6).unwrap(), None);
+        assert!(per_cell.labels_per_cell(7).unwrap_err().contains("24 bytes"));
+        assert!(as_runs.labels_per_cell(5).unwrap_err().starts_with("label_runs cover 6"));
+    }
+}

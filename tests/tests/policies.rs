@@ -102,7 +102,11 @@ async fn the_segmentation_is_kept_and_served() {
     let report = client_sim::run(&config).await.unwrap();
     let segmentation = exec
         .missions()
-        .get_segmentation(pb::GetSegmentationRequest { mission_id: report.mission_id, include_labels: true })
+        .get_segmentation(pb::GetSegmentationRequest {
+            mission_id: report.mission_id,
+            include_labels: true,
+            label_runs: false,
+        })
         .await
         .unwrap()
         .into_inner();
@@ -112,18 +116,33 @@ async fn the_segmentation_is_kept_and_served() {
     assert_eq!(segmentation.labels.len(), (frame.width * frame.height * 4) as usize);
     let labelled = segmentation.labels.chunks_exact(4).filter(|c| *c != [0, 0, 0, 0]).count() as u64;
     assert_eq!(labelled, segmentation.segments.iter().map(|s| s.cells).sum::<u64>());
-    // Without labels, only the summary; a mission never segmented has none.
-    let plain = exec
+    // As runs: the same labels in a fraction of the bytes.
+    let runs = exec
         .missions()
-        .get_segmentation(pb::GetSegmentationRequest { mission_id: report.mission_id, include_labels: false })
+        .get_segmentation(pb::GetSegmentationRequest {
+            mission_id: report.mission_id,
+            include_labels: true,
+            label_runs: true,
+        })
         .await
         .unwrap()
         .into_inner();
-    assert!(plain.labels.is_empty());
+    assert!(runs.labels.is_empty());
+    let cells = (frame.width * frame.height) as usize;
+    assert_eq!(runs.labels_per_cell(cells).unwrap(), segmentation.labels_per_cell(cells).unwrap());
+    assert!(runs.label_runs.len() * 10 < segmentation.labels.len(), "{} bytes of runs", runs.label_runs.len());
+    // Without labels, only the summary; a mission never segmented has none.
+    let plain = exec
+        .missions()
+        .get_segmentation(pb::GetSegmentationRequest { mission_id: report.mission_id, ..Default::default() })
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(plain.labels.is_empty() && plain.label_runs.is_empty());
     let other = create_mission(&mut exec.missions(), 10, 10, "burgard").await;
     let none = exec
         .missions()
-        .get_segmentation(pb::GetSegmentationRequest { mission_id: other.id, include_labels: false })
+        .get_segmentation(pb::GetSegmentationRequest { mission_id: other.id, ..Default::default() })
         .await
         .unwrap()
         .into_inner();
@@ -157,7 +176,11 @@ async fn a_given_segmentation_is_planned_on_kept_and_taken_back() {
     };
     assert!(get(exec.missions()).await.given_segmentation);
     let served = missions
-        .get_segmentation(pb::GetSegmentationRequest { mission_id: report.mission_id, include_labels: true })
+        .get_segmentation(pb::GetSegmentationRequest {
+            mission_id: report.mission_id,
+            include_labels: true,
+            label_runs: false,
+        })
         .await
         .unwrap()
         .into_inner();
@@ -208,7 +231,7 @@ async fn a_given_segmentation_is_planned_on_kept_and_taken_back() {
     assert!(get(exec.missions()).await.given_segmentation);
     let mut missions = exec.missions();
     let stored = missions
-        .get_segmentation(pb::GetSegmentationRequest { mission_id: report.mission_id, include_labels: false })
+        .get_segmentation(pb::GetSegmentationRequest { mission_id: report.mission_id, ..Default::default() })
         .await
         .unwrap()
         .into_inner();

@@ -479,13 +479,11 @@ async fn ask_executive(
     .await?;
     let segments = if policy.keeps_segmentation {
         ask(missions, "GetSegmentation", budget, |mut m| async move {
-            m.get_segmentation(pb::GetSegmentationRequest { mission_id, include_labels: true }).await
+            m.get_segmentation(pb::GetSegmentationRequest { mission_id, include_labels: true, label_runs: true }).await
         })
         .await
         .ok()
-        .map(|r| r.labels)
-        .filter(|l| l.len() == world.frame.len() * 4)
-        .map(|l| l.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+        .and_then(|r| r.labels_per_cell(world.frame.len()).ok().flatten())
     } else {
         None
     };

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import REPOSITORY, TOKEN, Coordinator, follow_assignments, goto_from, wait_for
 
-from exploration_executive import Executive, MapServerMap, patch_from_grid, pb, read_pgm
+from exploration_executive import Executive, MapServerMap, patch_from_grid, pb, read_pgm, segment_labels
 
 WAREHOUSE = REPOSITORY / "maps" / "nav2_warehouse.yaml"
 EXAMPLES = REPOSITORY / "clients" / "python" / "examples"
@@ -111,6 +111,34 @@ def test_the_map_of_a_large_mission_is_read_whole(open_coordinator: Coordinator)
         snapshot = executive.missions.GetMap(pb.GetMapRequest(mission_id=mission.id))
         assert len(snapshot.cells) == 2100 * 2100
         assert set(snapshot.cells) == {255}
+
+
+def test_the_segments_of_every_cell_are_read_from_their_runs(open_coordinator: Coordinator) -> None:
+    # Two rooms, a doorway between them, the right-hand third still unknown.
+    grid = np.zeros((30, 60), dtype=np.uint8)
+    grid[[0, -1], :] = 100
+    grid[:, [0, 20]] = 100
+    grid[12:18, 20] = 0
+    grid[:, 40:] = 255
+    grid[2, 1:20] = 100  # a wall near the bottom: row 0 of the answer is the bottom row
+    with Executive(open_coordinator.address) as executive:
+        mission = executive.create_mission("rooms", frame(60, 30), policy="segmentation", lockstep=True)
+        never, no_labels = executive.segmentation(mission.id)
+        assert not never.HasField("computed_at") and no_labels is None
+        robot = executive.register_robot(mission.id, "r1", (1.0, 1.5, 0.0))
+        robot.update_map(grid, (0, 0), (1.0, 1.5, 0.0), encoding="occupancy_percent")
+        answer, labels = executive.segmentation(mission.id)
+        assert answer.HasField("computed_at") and answer.label_runs and not answer.labels
+        assert labels is not None and labels.shape == (30, 60)
+        assert (labels[2, 1:20] == 0).all() and labels[5, 5] > 0 and labels[15, 30] > 0
+        assert int((labels > 0).sum()) == sum(s.cells for s in answer.segments)
+        # The same labels as the executive sends them cell by cell.
+        request = pb.GetSegmentationRequest(mission_id=mission.id, include_labels=True)
+        per_cell = executive.missions.GetSegmentation(request)
+        assert per_cell.labels and not per_cell.label_runs
+        assert (segment_labels(per_cell) == labels).all()
+        assert len(answer.label_runs) * 2 < len(per_cell.labels)
+        robot.close()
 
 
 def test_a_ros_occupancy_grid_is_sent_as_it_is(open_coordinator: Coordinator) -> None:

@@ -242,7 +242,8 @@ impl Missions for ExplorationService {
         let id = required_id(r.mission_id, "mission_id")?;
         let frame = self.executive.mission(id).await?.record.spec.frame;
         let stored = self.executive.segmentation(id).await?;
-        Ok(Response::new(convert::segmentation(id, &frame, stored.as_ref(), r.include_labels)))
+        let form = convert::LabelForm::asked_by(&r);
+        Ok(Response::new(convert::segmentation(id, &frame, stored.as_ref(), form)?))
     }
 
     type WatchMissionStream = MissionViewStream;

@@ -14,7 +14,7 @@ The generated messages and stubs are :mod:`exploration_executive.pb` and
 
 from ._proto.exploration.v1 import exploration_pb2 as pb
 from ._proto.exploration.v1 import exploration_pb2_grpc as rpc
-from .client import Bid, Executive, Robot
+from .client import Bid, Executive, Robot, segment_labels
 from .maps import FREE, OCCUPIED, UNKNOWN, MapServerMap, read_pgm
 from .patches import patch_from_grid
 
@@ -30,4 +30,5 @@ __all__ = [
     "pb",
     "read_pgm",
     "rpc",
+    "segment_labels",
 ]

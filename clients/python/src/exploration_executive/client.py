@@ -210,6 +210,25 @@ class Executive:
     def robots(self, mission_id: int) -> list[pb.Robot]:
         return list(self._call("missions", "ListRobots", pb.ListRobotsRequest(mission_id=mission_id)).robots)
 
+    def segmentation(self, mission_id: int) -> tuple[pb.Segmentation, np.ndarray | None]:
+        """The mission's rooms and corridors, and the segment of every cell:
+        ``labels[row, column]``, row 0 the bottom row, 0 outside the free
+        space; ``None`` when the mission was never segmented. The labels
+        travel as runs, a few kilobytes for a building, and cell by cell
+        only when the executive says their runs are too many to send."""
+
+        def ask(runs: bool) -> pb.Segmentation:
+            request = pb.GetSegmentationRequest(mission_id=mission_id, include_labels=True, label_runs=runs)
+            return self._call("missions", "GetSegmentation", request)
+
+        try:
+            answer = ask(True)
+        except grpc.RpcError as error:
+            if error.code() != grpc.StatusCode.RESOURCE_EXHAUSTED:
+                raise
+            answer = ask(False)
+        return answer, segment_labels(answer)
+
     def events(self, mission_id: int, *, page_size: int = 0) -> Iterator[pb.MissionEvent]:
         """Every event of the mission, oldest first, read a page at a time
         (``page_size`` events; 0 lets the executive choose, 1000)."""
@@ -300,6 +319,27 @@ class Executive:
             _current=self._replicas.current,
         )
         return Robot(session, response.robot)
+
+
+def segment_labels(segmentation: pb.Segmentation) -> np.ndarray | None:
+    """The labels of a ``GetSegmentation`` answer as a (height, width) grid,
+    from ``label_runs`` or ``labels``, whichever it holds; ``None`` for neither."""
+    width, height = segmentation.frame.width, segmentation.frame.height
+    if segmentation.label_runs:
+        if len(segmentation.label_runs) % 8:
+            raise ValueError(f"label_runs hold {len(segmentation.label_runs)} bytes, not pairs of 8")
+        pairs = np.frombuffer(segmentation.label_runs, dtype="<u4").reshape(-1, 2)
+        covered = int(pairs[:, 1].sum(dtype=np.uint64))
+        if covered != width * height:
+            raise ValueError(f"label_runs cover {covered} cells, not the map's {width} x {height}")
+        labels = np.repeat(pairs[:, 0], pairs[:, 1])
+    elif segmentation.labels:
+        if len(segmentation.labels) != 4 * width * height:
+            raise ValueError(f"labels hold {len(segmentation.labels)} bytes for a {width} x {height} map")
+        labels = np.frombuffer(segmentation.labels, dtype="<u4")
+    else:
+        return None
+    return labels.reshape(height, width)
 
 
 class Robot:

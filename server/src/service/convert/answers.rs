@@ -1,17 +1,21 @@
 //! What the executive holds, as the answers' messages: missions, robots,
 //! tasks and their history, assignments, events, the segmentation, the
-//! policy catalogue. Nothing here can fail: the executive's records are
-//! valid by construction.
+//! policy catalogue. Nothing here can fail, the executive's records being
+//! valid by construction, but an answer too large for a client to read.
 
 use exploration::grid::GridFrame;
 use exploration::math::Point2;
 use exploration::policy::{Capabilities, PolicyConfig, catalogue};
 use exploration_proto::v1 as pb;
 
+use prost::Message as _;
+
+use crate::MAX_MESSAGE_BYTES;
 use crate::domain::{
     Actor, Assignment, Leftover, LeftoverReason, LifecycleSettings, MissionEvent, MissionState, Region, ReplanSettings,
     RobotState, StoredSegmentation, TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
+use crate::error::Error;
 use crate::executive::{MissionSummary, RobotSummary};
 
 /// A grid frame in proto form.
@@ -224,16 +228,91 @@ pub fn event(e: &MissionEvent) -> pb::MissionEvent {
     }
 }
 
-/// A segmentation in proto form; `labels` only when asked for.
+/// How `GetSegmentation` is asked to send the labels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LabelForm {
+    /// No labels.
+    Omitted,
+    /// `labels`: four bytes a cell.
+    PerCell,
+    /// `label_runs`: eight bytes a run.
+    Runs,
+}
+
+impl LabelForm {
+    /// The form a request asks for.
+    pub fn asked_by(r: &pb::GetSegmentationRequest) -> Self {
+        match (r.include_labels, r.label_runs) {
+            (false, _) => Self::Omitted,
+            (true, false) => Self::PerCell,
+            (true, true) => Self::Runs,
+        }
+    }
+
+    /// Bytes the labels take in this form on the wire.
+    fn wire_bytes(self, labels: &[u32]) -> usize {
+        let payload = match self {
+            Self::Omitted => 0,
+            Self::PerCell => labels.len() * 4,
+            Self::Runs => exploration_proto::label_runs::encoded_len(labels),
+        };
+        // A bytes field: a tag byte and a varint length, or nothing when empty.
+        if payload == 0 { 0 } else { 1 + prost::encoding::encoded_len_varint(payload as u64) + payload }
+    }
+
+    fn request(self) -> &'static str {
+        match self {
+            Self::Omitted => "without include_labels",
+            Self::PerCell => "with include_labels and without label_runs",
+            Self::Runs => "with include_labels and label_runs",
+        }
+    }
+}
+
+/// A segmentation in proto form with its labels in the form asked for;
+/// RESOURCE_EXHAUSTED, naming a form that fits if one does, when the answer
+/// would pass the [`MAX_MESSAGE_BYTES`] a client reads.
 pub fn segmentation(
     mission_id: u64,
     frame: &GridFrame,
     stored: Option<&StoredSegmentation>,
-    include_labels: bool,
-) -> pb::Segmentation {
+    form: LabelForm,
+) -> Result<pb::Segmentation, Error> {
     let Some(stored) = stored else {
-        return pb::Segmentation { mission_id, frame: Some(frame_to_proto(frame)), ..pb::Segmentation::default() };
+        return Ok(pb::Segmentation { mission_id, frame: Some(frame_to_proto(frame)), ..pb::Segmentation::default() });
     };
+    let mut answer = segmentation_without_labels(mission_id, frame, stored);
+    let labels = &stored.segmentation.labels;
+    let size = |form: LabelForm| answer.encoded_len() + form.wire_bytes(labels);
+    if size(form) > MAX_MESSAGE_BYTES {
+        let fits = [LabelForm::Runs, LabelForm::PerCell, LabelForm::Omitted]
+            .into_iter()
+            .find(|&other| size(other) <= MAX_MESSAGE_BYTES)
+            .map_or_else(
+                || {
+                    format!(
+                        "it has {} segments and {} critical points",
+                        answer.segments.len(),
+                        answer.critical_points.len()
+                    )
+                },
+                |other| format!("asked {} it takes {} bytes", other.request(), size(other)),
+            );
+        return Err(Error::ResourceExhausted(format!(
+            "the segmentation asked {} would take {} bytes, more than the {MAX_MESSAGE_BYTES} a client reads; {fits}",
+            form.request(),
+            size(form),
+        )));
+    }
+    match form {
+        LabelForm::Omitted => {}
+        LabelForm::PerCell => answer.labels = labels.iter().flat_map(|l| l.to_le_bytes()).collect(),
+        LabelForm::Runs => answer.label_runs = exploration_proto::label_runs::encode(labels),
+    }
+    Ok(answer)
+}
+
+fn segmentation_without_labels(mission_id: u64, frame: &GridFrame, stored: &StoredSegmentation) -> pb::Segmentation {
     let s = &stored.segmentation;
     let corner = |x: i32, y: i32| {
         Point2::new(frame.origin.x + f64::from(x) * frame.resolution, frame.origin.y + f64::from(y) * frame.resolution)
@@ -264,7 +343,7 @@ pub fn segmentation(
                 }
             })
             .collect(),
-        labels: if include_labels { s.labels.iter().flat_map(|l| l.to_le_bytes()).collect() } else { Vec::new() },
+        ..pb::Segmentation::default()
     }
 }
 
@@ -316,5 +395,68 @@ impl From<&TaskRecord> for pb::Task {
             created_by: t.created_by.clone(),
             note: t.note.clone(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use exploration::grid::{Cell, CellRect};
+    use exploration::segment::{CriticalPoint, Segment, Segmentation};
+
+    use super::*;
+
+    /// A 20 000 × 1 000 map (the largest allowed is 25 million cells) cut
+    /// into rooms of 100 columns: 20 million labels, 80 MB at four bytes a
+    /// cell, a few hundred kilobytes as runs.
+    fn wide_building() -> (GridFrame, StoredSegmentation) {
+        let frame = GridFrame::new(0.05, Point2::new(0.0, 0.0), 20_000, 1_000);
+        let labels: Vec<u32> = (0..frame.len()).map(|i| (i % 20_000 / 100) as u32 + 1).collect();
+        let segments = (1..=200)
+            .map(|id| Segment { id, cells: 100_000, bounds: CellRect::new(0, 0, 100, 1_000), frontier: vec![] })
+            .collect();
+        let critical_points = vec![CriticalPoint { cell: Cell::new(100, 500), clearance: 3.0 }];
+        let segmentation = Segmentation { frame, labels, segments, critical_points };
+        (frame, StoredSegmentation { computed_at: Timestamp(1_000), segmentation })
+    }
+
+    #[test]
+    fn labels_too_large_for_a_client_are_refused_naming_the_runs_that_fit() {
+        let (frame, stored) = wide_building();
+        let Err(Error::ResourceExhausted(message)) = segmentation(7, &frame, Some(&stored), LabelForm::PerCell) else {
+            panic!("80 MB of labels were answered");
+        };
+        assert!(message.contains("without label_runs would take 800"), "{message}");
+        assert!(message.contains("more than the 67108864 a client reads"), "{message}");
+        assert!(message.contains("asked with include_labels and label_runs it takes"), "{message}");
+
+        let answer = segmentation(7, &frame, Some(&stored), LabelForm::Runs).unwrap();
+        assert!(answer.encoded_len() < 4 << 20, "{} bytes", answer.encoded_len());
+        assert!(answer.labels.is_empty());
+        assert_eq!(answer.labels_per_cell(frame.len()).unwrap().as_deref(), Some(&stored.segmentation.labels[..]));
+        assert_eq!(answer.segments.len(), 200);
+
+        let bare = segmentation(7, &frame, Some(&stored), LabelForm::Omitted).unwrap();
+        assert!(bare.labels.is_empty() && bare.label_runs.is_empty());
+    }
+
+    #[test]
+    fn a_fragmented_segmentation_is_refused_in_every_form_but_without_labels() {
+        let (frame, mut stored) = wide_building();
+        // A label change at every cell: 8 bytes a cell as runs, 4 per cell.
+        stored.segmentation.labels.iter_mut().enumerate().for_each(|(i, l)| *l = (i % 2) as u32);
+        for form in [LabelForm::Runs, LabelForm::PerCell] {
+            let Err(Error::ResourceExhausted(message)) = segmentation(7, &frame, Some(&stored), form) else {
+                panic!("{form:?} was answered");
+            };
+            assert!(message.contains("asked without include_labels it takes"), "{message}");
+        }
+        // A small map's labels fit in both forms, and agree.
+        let frame = GridFrame::new(0.05, Point2::new(0.0, 0.0), 50, 40);
+        stored.segmentation.frame = frame;
+        stored.segmentation.labels.truncate(frame.len());
+        let runs = segmentation(7, &frame, Some(&stored), LabelForm::Runs).unwrap();
+        let per_cell = segmentation(7, &frame, Some(&stored), LabelForm::PerCell).unwrap();
+        assert_eq!(per_cell.labels.len(), frame.len() * 4);
+        assert_eq!(runs.labels_per_cell(frame.len()).unwrap(), per_cell.labels_per_cell(frame.len()).unwrap());
     }
 }
