@@ -8,6 +8,9 @@ use client_sim::console::StdoutError;
 use client_sim::outln;
 use exploration_proto::v1 as pb;
 
+/// Leftover clusters a mission's text shows one by one, the largest; `--json` has all that were listed.
+const LEFTOVERS_SHOWN: usize = 10;
+
 /// Whether a result reached standard output.
 pub type Printed = Result<(), StdoutError>;
 
@@ -73,13 +76,19 @@ impl Output {
         for region in &m.forbidden_regions {
             outln!("  forbidden   #{} {} by {} ({})", region.id, rect_text(region.area), region.actor, region.reason)?;
         }
-        for left in &m.leftovers {
+        for left in m.leftovers.iter().take(LEFTOVERS_SHOWN) {
             outln!(
                 "  left over   {} frontier cells near {}: {}",
                 left.cells,
                 point_text(left.position),
                 leftover_reason(left.reason())
             )?;
+        }
+        let rest = m.leftovers.get(LEFTOVERS_SHOWN..).unwrap_or_default();
+        let more = rest.len() as u64 + m.unlisted_leftovers;
+        if more > 0 {
+            let cells = rest.iter().map(|l| l.cells).sum::<u64>() + m.unlisted_leftover_cells;
+            outln!("  left over   {more} smaller clusters, {cells} frontier cells in all")?;
         }
         Ok(())
     }
@@ -323,6 +332,7 @@ fn mission_json(m: &pb::Mission) -> Value {
         "given_segmentation": m.given_segmentation,
         "forbidden_regions": m.forbidden_regions.iter().map(region_json).collect::<Vec<_>>(),
         "leftovers": leftovers,
+        "unlisted_leftovers": { "clusters": m.unlisted_leftovers, "cells": m.unlisted_leftover_cells },
     })
 }
 

@@ -152,7 +152,7 @@ pub struct MissionRecord {
     /// Paused by an operator.
     pub paused: bool,
     /// The frontier left at completion, and why.
-    pub leftovers: Vec<Leftover>,
+    pub leftovers: Leftovers,
     /// When it was created.
     pub created_at: Timestamp,
 }
@@ -206,6 +206,42 @@ pub struct Leftover {
     pub cells: usize,
     /// Its cell nearest to its centroid, in the world frame.
     pub position: Point2,
+}
+
+/// Frontier clusters listed as left at most: a map a robot wrote may leave
+/// millions of one-cell pockets (2.8 million in a 25-million-cell mission),
+/// and every `GetMission`, `ListMissions` and `WatchMission` carries them.
+pub const MOST_LEFTOVERS: usize = 1_000;
+
+/// The frontier left at completion: the largest clusters, and how many
+/// more there were.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Leftovers {
+    /// At most [`MOST_LEFTOVERS`] clusters, the largest first.
+    pub listed: Vec<Leftover>,
+    /// Clusters left beyond those listed.
+    pub unlisted_clusters: u64,
+    /// Their frontier cells.
+    pub unlisted_cells: u64,
+}
+
+impl Leftovers {
+    /// The largest [`MOST_LEFTOVERS`] of `all`, largest first (equal ones
+    /// in their order in `all`), and a tally of the rest.
+    pub fn keep_largest(mut all: Vec<Leftover>) -> Self {
+        all.sort_by_key(|l| std::cmp::Reverse(l.cells));
+        let rest = all.split_off(all.len().min(MOST_LEFTOVERS));
+        Self {
+            listed: all,
+            unlisted_clusters: rest.len() as u64,
+            unlisted_cells: rest.iter().map(|l| l.cells as u64).sum(),
+        }
+    }
+
+    /// Whether nothing was left.
+    pub fn is_empty(&self) -> bool {
+        self.listed.is_empty() && self.unlisted_clusters == 0
+    }
 }
 
 /// A region where no target is assigned.
@@ -674,3 +710,26 @@ pub type Rooms = std::sync::Arc<[u32]>;
 
 /// Policy parameters as given by a client, before validation.
 pub type ParamOverrides = BTreeMap<String, f64>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_largest_leftovers_are_listed_and_the_rest_counted() {
+        let left =
+            |cells: usize, x: f64| Leftover { reason: LeftoverReason::TooSmall, cells, position: Point2::new(x, 0.0) };
+        let few = Leftovers::keep_largest(vec![left(1, 0.0), left(5, 1.0), left(1, 2.0)]);
+        assert_eq!(few.listed, vec![left(5, 1.0), left(1, 0.0), left(1, 2.0)]);
+        assert_eq!((few.unlisted_clusters, few.unlisted_cells), (0, 0));
+        // A pocket a cell: the 1 000 largest listed, the others counted.
+        let mut pockets: Vec<Leftover> = (0..2_500).map(|i| left(1, f64::from(i))).collect();
+        pockets[1_700] = left(30, -1.0);
+        let many = Leftovers::keep_largest(pockets);
+        assert_eq!(many.listed.len(), MOST_LEFTOVERS);
+        assert_eq!(many.listed[0], left(30, -1.0));
+        assert_eq!(many.listed[1], left(1, 0.0));
+        assert_eq!((many.unlisted_clusters, many.unlisted_cells), (1_500, 1_500));
+        assert!(!many.is_empty() && Leftovers::default().is_empty());
+    }
+}

@@ -12,7 +12,7 @@ use std::sync::Arc;
 use async_trait::async_trait;
 
 use crate::domain::{
-    Bid, BlacklistEntry, Leftover, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState, Region, RobotId,
+    Bid, BlacklistEntry, Leftovers, MissionEvent, MissionId, MissionRecord, MissionSpec, MissionState, Region, RobotId,
     RobotRecord, RobotSpec, Rooms, StoredSegmentation, TaskId, TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
 use exploration::fusion::{MapFusion, Patch};
@@ -270,7 +270,7 @@ pub struct MissionCounters {
     /// Paused by an operator.
     pub paused: bool,
     /// The frontier left at completion.
-    pub leftovers: Vec<Leftover>,
+    pub leftovers: Leftovers,
 }
 
 /// A task's change of state.

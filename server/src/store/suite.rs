@@ -6,9 +6,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use crate::domain::{
-    Actor, Bid, BlacklistEntry, Leftover, LeftoverReason, LifecycleSettings, MissionEvent, MissionId, MissionSpec,
-    MissionState, Pose, Region, ReplanSettings, RobotSpec, RobotState, StoredSegmentation, TaskKind, TaskRecord,
-    TaskState, Timestamp, Transition,
+    Actor, Bid, BlacklistEntry, Leftover, LeftoverReason, Leftovers, LifecycleSettings, MOST_LEFTOVERS, MissionEvent,
+    MissionId, MissionSpec, MissionState, Pose, Region, ReplanSettings, RobotSpec, RobotState, StoredSegmentation,
+    TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
 use crate::store::sqlite::Durability;
 use crate::store::{
@@ -187,7 +187,18 @@ async fn a_changeset_round_trips(db: TestDb) {
     robot.last_map_seq = 5;
     robot.assignment_version = 1;
     robot.lost = true;
-    let leftovers = vec![Leftover { reason: LeftoverReason::TooNarrow, cells: 12, position: Point2::new(1.5, 2.5) }];
+    // More than are listed: the JSON form with the tally.
+    let leftovers = Leftovers::keep_largest(
+        (0..MOST_LEFTOVERS + 2)
+            .map(|i| Leftover {
+                reason: LeftoverReason::TooNarrow,
+                cells: 12 + i,
+                // The last bit of a position survives the JSON it is kept in.
+                position: Point2::new(11.850000000000001, 0.1 * i as f64),
+            })
+            .collect(),
+    );
+    assert_eq!((leftovers.unlisted_clusters, leftovers.unlisted_cells), (2, 25));
     let region = Region {
         id: 3,
         mission_id: mission.id,

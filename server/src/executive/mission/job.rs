@@ -14,7 +14,7 @@ use exploration::policy::{Bid as PolicyBid, CurrentTask, Plan, PlanningInput, Po
 use exploration::workers::{Unpaced, Workers};
 
 use super::{Mission, RobotSlot, lifecycle};
-use crate::domain::{Leftover, RobotId, Rooms, TaskKind};
+use crate::domain::{Leftover, Leftovers, RobotId, Rooms, TaskKind};
 use crate::executive::planner::SharedPace;
 
 /// Everything needed to run a policy off the mission's lock.
@@ -63,7 +63,7 @@ pub(crate) struct JobOutcome {
     /// keeps its state.
     pub(super) undecided: bool,
     /// What is left at completion, and why.
-    pub(super) leftovers: Vec<Leftover>,
+    pub(super) leftovers: Leftovers,
     pub(super) expired: Vec<(RobotId, Cell)>,
 }
 
@@ -180,7 +180,7 @@ impl PlanningJob {
             region_targets,
             complete,
             undecided,
-            leftovers,
+            leftovers: Leftovers::keep_largest(leftovers),
             expired: self.expired,
         }
     }

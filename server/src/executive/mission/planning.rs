@@ -13,7 +13,8 @@ use exploration::grid::Cell;
 use super::job::JobOutcome;
 use super::{HOME_TOLERANCE_M, Mission, TaskDraft, transition};
 use crate::domain::{
-    Actor, BY_EXECUTIVE, BY_POLICY, MissionState, RobotId, StoredSegmentation, TaskId, TaskKind, TaskState, Timestamp,
+    Actor, BY_EXECUTIVE, BY_POLICY, Leftovers, MissionState, RobotId, StoredSegmentation, TaskId, TaskKind, TaskState,
+    Timestamp,
 };
 use crate::store::Changeset;
 
@@ -201,7 +202,7 @@ impl Mission {
         counters.replans += 1;
         if !outcome.undecided {
             counters.state = if completed { MissionState::Completed } else { MissionState::Active };
-            counters.leftovers = if completed { outcome.leftovers.clone() } else { Vec::new() };
+            counters.leftovers = if completed { outcome.leftovers.clone() } else { Leftovers::default() };
         }
         if counters.state != self.record.state {
             // Every robot's assignment carries the mission state: push it.
@@ -342,7 +343,7 @@ mod tests {
             replans: 0,
             map_updates: 0,
             paused: false,
-            leftovers: Vec::new(),
+            leftovers: Leftovers::default(),
             created_at: Timestamp(0),
         };
         let now = Instant::now();

@@ -121,7 +121,9 @@ impl From<&MissionSummary> for pb::Mission {
             lockstep: r.spec.lockstep,
             lifecycle: Some((&r.spec.lifecycle).into()),
             forbidden_regions: m.forbidden.iter().map(region).collect(),
-            leftovers: r.leftovers.iter().map(leftover).collect(),
+            leftovers: r.leftovers.listed.iter().map(leftover).collect(),
+            unlisted_leftovers: r.leftovers.unlisted_clusters,
+            unlisted_leftover_cells: r.leftovers.unlisted_cells,
             given_segmentation: m.given_segmentation,
         }
     }

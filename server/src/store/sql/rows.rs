@@ -11,9 +11,9 @@ use std::sync::Arc;
 use super::statement::{Columns, Value};
 
 use crate::domain::{
-    Actor, Bid, BlacklistEntry, Leftover, LeftoverReason, LifecycleSettings, MissionEvent, MissionRecord, MissionSpec,
-    MissionState, Pose, Region, ReplanSettings, RobotId, RobotRecord, RobotState, Rooms, StoredSegmentation, TaskId,
-    TaskKind, TaskRecord, TaskState, Timestamp, Transition,
+    Actor, Bid, BlacklistEntry, Leftover, LeftoverReason, Leftovers, LifecycleSettings, MissionEvent, MissionRecord,
+    MissionSpec, MissionState, Pose, Region, ReplanSettings, RobotId, RobotRecord, RobotState, Rooms,
+    StoredSegmentation, TaskId, TaskKind, TaskRecord, TaskState, Timestamp, Transition,
 };
 use crate::store::{Lease, LoggedPatch, MapSnapshot, Share, StoreError};
 use crate::validate::{self, Invalid};
@@ -112,8 +112,11 @@ impl<'a> At<'a> {
     }
 }
 
-pub(super) fn leftovers_json(leftovers: &[Leftover]) -> String {
-    let items: Vec<serde_json::Value> = leftovers
+/// The leftovers as JSON: an array of clusters, or, when some were not
+/// listed, `{"listed": [...], "unlisted_clusters": n, "unlisted_cells": m}`.
+pub(super) fn leftovers_json(leftovers: &Leftovers) -> String {
+    let listed: Vec<serde_json::Value> = leftovers
+        .listed
         .iter()
         .map(|l| {
             serde_json::json!({
@@ -121,15 +124,28 @@ pub(super) fn leftovers_json(leftovers: &[Leftover]) -> String {
             })
         })
         .collect();
-    serde_json::Value::Array(items).to_string()
+    if leftovers.unlisted_clusters == 0 {
+        return serde_json::Value::Array(listed).to_string();
+    }
+    serde_json::json!({
+        "listed": listed,
+        "unlisted_clusters": leftovers.unlisted_clusters,
+        "unlisted_cells": leftovers.unlisted_cells,
+    })
+    .to_string()
 }
 
-fn leftovers_from_json(at: At<'_>, json: &str) -> Result<Vec<Leftover>, StoreError> {
+/// Leftovers from either JSON form. A row written before they were bounded
+/// may list any number: they are bounded as they are read.
+fn leftovers_from_json(at: At<'_>, json: &str) -> Result<Leftovers, StoreError> {
     let bad = |what: &str| at.bad(format!("leftovers: {what}"));
     let value: serde_json::Value = serde_json::from_str(json).map_err(|e| bad(&e.to_string()))?;
-    value
+    let count = |key: &str| value.get(key).map_or(Ok(0), |v| v.as_u64().ok_or_else(|| bad(key)));
+    let (unlisted_clusters, unlisted_cells) = (count("unlisted_clusters")?, count("unlisted_cells")?);
+    let listed = value
         .as_array()
-        .ok_or_else(|| bad("not an array"))?
+        .or_else(|| value.get("listed").and_then(serde_json::Value::as_array))
+        .ok_or_else(|| bad("neither a list nor an object with one"))?
         .iter()
         .map(|l| {
             let reason = l["reason"].as_str().and_then(LeftoverReason::parse).ok_or_else(|| bad("reason"))?;
@@ -143,7 +159,11 @@ fn leftovers_from_json(at: At<'_>, json: &str) -> Result<Vec<Leftover>, StoreErr
                 position: Point2::new(coordinate("x")?, coordinate("y")?),
             })
         })
-        .collect()
+        .collect::<Result<Vec<_>, StoreError>>()?;
+    let mut leftovers = Leftovers::keep_largest(listed);
+    leftovers.unlisted_clusters = leftovers.unlisted_clusters.saturating_add(unlisted_clusters);
+    leftovers.unlisted_cells = leftovers.unlisted_cells.saturating_add(unlisted_cells);
+    Ok(leftovers)
 }
 
 /// The grid frame of a `missions` row.
