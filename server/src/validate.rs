@@ -20,6 +20,10 @@ pub const MAX_GRID_CELLS: u64 = 25_000_000;
 pub const MAX_NAME_CHARS: usize = 128;
 /// Longest free-text reason or note, characters (longer ones are cut).
 pub const MAX_REASON_CHARS: usize = 500;
+/// Most forbidden regions one mission holds: every replanning checks each
+/// frontier cell against each region, and every answer about the mission
+/// lists them.
+pub const MAX_FORBIDDEN_REGIONS: usize = 1_000;
 /// Farthest a map's origin may lie from the world's, metres (UTM northings
 /// reach 10⁷ m; beyond 10⁸ m a cell of 1 cm cannot be told apart in f64).
 pub const MAX_COORDINATE_M: f64 = 1e8;

@@ -449,6 +449,41 @@ async fn forbidden_regions_get_no_targets_until_allowed() {
     assert!(kinds.contains(&"region_forbidden".into()) && kinds.contains(&"region_allowed".into()), "{kinds:?}");
 }
 
+/// Each replanning checks every frontier cell against every region, and
+/// every answer about the mission lists them: a mission holds at most
+/// 1 000, and the next is refused without a trace until one is allowed.
+#[tokio::test]
+async fn a_mission_holds_at_most_a_thousand_forbidden_regions() {
+    let site = Site::start().await;
+    let mission = site.mission("nearest", 1000.0, 1000.0).await;
+    let mut operator = site.operator();
+    let forbid = |i: u32| pb::ForbidRegionRequest {
+        mission_id: mission.id,
+        area: Some(pb::Rect {
+            min_x: 0.1 * f64::from(i % 59),
+            min_y: 0.0,
+            max_x: 0.1 * f64::from(i % 59 + 1),
+            max_y: 0.5,
+        }),
+        actor: "bob".into(),
+        reason: format!("cone {i}"),
+    };
+    let mut first = None;
+    for i in 0..1_000 {
+        let region = operator.forbid_region(forbid(i)).await.unwrap().into_inner();
+        first.get_or_insert(region.id);
+    }
+    let refused = operator.forbid_region(forbid(1_000)).await.unwrap_err();
+    assert_eq!(refused.code(), Code::ResourceExhausted, "{refused:?}");
+    assert!(refused.message().contains("already has 1000 forbidden regions"), "{refused:?}");
+    let held = operator.get_mission(pb::GetMissionRequest { mission_id: mission.id }).await.unwrap().into_inner();
+    assert_eq!(held.forbidden_regions.len(), 1_000);
+    assert!(!held.forbidden_regions.iter().any(|r| r.reason == "cone 1000"));
+    let allow = pb::AllowRegionRequest { mission_id: mission.id, region_id: first.unwrap(), ..Default::default() };
+    operator.allow_region(allow).await.unwrap();
+    operator.forbid_region(forbid(1_000)).await.unwrap();
+}
+
 #[tokio::test]
 async fn a_paused_mission_holds_every_robot_until_resumed() {
     let site = Site::start().await;

@@ -16,7 +16,7 @@ use crate::domain::{
 };
 use crate::error::Error;
 use crate::store::Changeset;
-use crate::validate::Place;
+use crate::validate::{MAX_FORBIDDEN_REGIONS, Place};
 
 /// How far from the point an operator gives a frontier to pin may lie, metres.
 const PIN_RADIUS_M: f64 = 1.0;
@@ -253,6 +253,13 @@ impl Mission {
         note: &OperatorNote,
         now: Timestamp,
     ) -> Result<(Changeset, Region), Error> {
+        if self.forbidden.len() >= MAX_FORBIDDEN_REGIONS {
+            return Err(Error::ResourceExhausted(format!(
+                "mission {} already has {} forbidden regions, the most it may have: allow one before forbidding another",
+                self.record.id,
+                self.forbidden.len()
+            )));
+        }
         let Some(cells) = self.cell_rect(min, max) else {
             return Err(Error::InvalidArgument(format!(
                 "region {}..{} does not overlap the mission map",
