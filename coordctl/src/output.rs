@@ -88,7 +88,7 @@ impl Output {
         let more = rest.len() as u64 + m.unlisted_leftovers;
         if more > 0 {
             let cells = rest.iter().map(|l| l.cells).sum::<u64>() + m.unlisted_leftover_cells;
-            outln!("  left over   {more} smaller clusters, {cells} frontier cells in all")?;
+            outln!("  left over   {more} more clusters, {cells} frontier cells among them")?;
         }
         Ok(())
     }
