@@ -100,16 +100,14 @@ async fn the_segmentation_is_kept_and_served() {
     config.cell_size = Some(0.25);
     config.max_steps = 60;
     let report = client_sim::run(&config).await.unwrap();
-    let segmentation = exec
-        .missions()
-        .get_segmentation(pb::GetSegmentationRequest {
-            mission_id: report.mission_id,
-            include_labels: true,
-            label_runs: false,
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let ask = |mission_id: u64, include_labels: bool, label_runs: bool| {
+        let mut missions = exec.missions();
+        async move {
+            let request = pb::GetSegmentationRequest { mission_id, include_labels, label_runs };
+            missions.get_segmentation(request).await.unwrap().into_inner()
+        }
+    };
+    let segmentation = ask(report.mission_id, true, false).await;
     assert!(segmentation.computed_at.is_some());
     assert!(!segmentation.segments.is_empty());
     let frame = segmentation.frame.unwrap();
@@ -117,35 +115,16 @@ async fn the_segmentation_is_kept_and_served() {
     let labelled = segmentation.labels.chunks_exact(4).filter(|c| *c != [0, 0, 0, 0]).count() as u64;
     assert_eq!(labelled, segmentation.segments.iter().map(|s| s.cells).sum::<u64>());
     // As runs: the same labels in a fraction of the bytes.
-    let runs = exec
-        .missions()
-        .get_segmentation(pb::GetSegmentationRequest {
-            mission_id: report.mission_id,
-            include_labels: true,
-            label_runs: true,
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let runs = ask(report.mission_id, true, true).await;
     assert!(runs.labels.is_empty());
     let cells = (frame.width * frame.height) as usize;
     assert_eq!(runs.labels_per_cell(cells).unwrap(), segmentation.labels_per_cell(cells).unwrap());
     assert!(runs.label_runs.len() * 10 < segmentation.labels.len(), "{} bytes of runs", runs.label_runs.len());
     // Without labels, only the summary; a mission never segmented has none.
-    let plain = exec
-        .missions()
-        .get_segmentation(pb::GetSegmentationRequest { mission_id: report.mission_id, ..Default::default() })
-        .await
-        .unwrap()
-        .into_inner();
+    let plain = ask(report.mission_id, false, true).await;
     assert!(plain.labels.is_empty() && plain.label_runs.is_empty());
     let other = create_mission(&mut exec.missions(), 10, 10, "burgard").await;
-    let none = exec
-        .missions()
-        .get_segmentation(pb::GetSegmentationRequest { mission_id: other.id, ..Default::default() })
-        .await
-        .unwrap()
-        .into_inner();
+    let none = ask(other.id, false, false).await;
     assert!(none.computed_at.is_none() && none.segments.is_empty());
     exec.stop().await;
 }
