@@ -321,7 +321,17 @@ async fn mission_command(
     let actor = actor.to_owned();
     match command {
         MissionCommand::List => {
-            let missions = api.list_missions(pb::ListMissionsRequest {}).await?.into_inner().missions;
+            let mut missions = Vec::new();
+            let mut after_id = 0;
+            loop {
+                let page = api.list_missions(pb::ListMissionsRequest { after_id, limit: 0 }).await?.into_inner();
+                missions.extend(page.missions);
+                if page.next_after_id == 0 {
+                    break;
+                }
+                anyhow::ensure!(page.next_after_id > after_id, "the executive's pages of missions do not move on");
+                after_id = page.next_after_id;
+            }
             out.missions(&missions)?;
         }
         MissionCommand::Show { mission } => {

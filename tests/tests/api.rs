@@ -244,7 +244,7 @@ async fn bad_missions_and_robots_are_refused() {
     frame.resolution = f64::NAN;
     let status = missions.create_mission(create(Some(frame), "burgard", &[])).await.unwrap_err();
     assert_eq!(status.code(), Code::InvalidArgument);
-    let listed = missions.list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner();
+    let listed = missions.list_missions(pb::ListMissionsRequest::default()).await.unwrap().into_inner();
     assert!(listed.missions.is_empty(), "a refused mission was created");
 
     let status = missions.get_mission(pb::GetMissionRequest { mission_id: 7 }).await.unwrap_err();

@@ -22,7 +22,7 @@ async fn a_backup_taken_while_a_fleet_explores_restores_and_resumes() {
 
     let mut missions = exec.missions();
     loop {
-        let listed = missions.list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner();
+        let listed = missions.list_missions(pb::ListMissionsRequest::default()).await.unwrap().into_inner();
         if listed.missions.first().is_some_and(|m| m.map_updates >= 60) {
             break;
         }
@@ -39,7 +39,7 @@ async fn a_backup_taken_while_a_fleet_explores_restores_and_resumes() {
     let report = fleet.await.unwrap().unwrap();
     assert!(report.completed, "the fleet went on undisturbed: {report:?}");
     let final_updates =
-        missions.list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner().missions[0].map_updates;
+        missions.list_missions(pb::ListMissionsRequest::default()).await.unwrap().into_inner().missions[0].map_updates;
     exec.stop().await;
 
     // The copy is a sound database, taken mid-mission.
@@ -49,7 +49,8 @@ async fn a_backup_taken_while_a_fleet_explores_restores_and_resumes() {
     raw.close().await.unwrap();
     let restored = TestExecutive::start(&copy).await;
     let mut missions = restored.missions();
-    let mission = missions.list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner().missions.remove(0);
+    let mission =
+        missions.list_missions(pb::ListMissionsRequest::default()).await.unwrap().into_inner().missions.remove(0);
     assert!(
         mission.map_updates >= 60 && mission.map_updates < final_updates,
         "{} of {final_updates}",

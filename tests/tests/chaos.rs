@@ -44,7 +44,7 @@ fn missions(url: &str) -> Vec<RunConfig> {
 async fn progress(url: &str) -> Option<u64> {
     let channel = tonic::transport::Endpoint::from_shared(url.to_owned()).unwrap().connect().await.ok()?;
     let mut client = pb::missions_client::MissionsClient::new(channel);
-    let listed = client.list_missions(pb::ListMissionsRequest {}).await.ok()?.into_inner();
+    let listed = client.list_missions(pb::ListMissionsRequest::default()).await.ok()?.into_inner();
     Some(listed.missions.iter().map(|m| m.map_updates).sum())
 }
 

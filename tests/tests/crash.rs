@@ -31,7 +31,7 @@ async fn the_fleet_survives_a_killed_executive() {
     let channel = tonic::transport::Endpoint::from_shared(url.clone()).unwrap().connect_lazy();
     let mut missions = MissionsClient::new(channel);
     let applied_before_kill = loop {
-        let list = missions.list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner();
+        let list = missions.list_missions(pb::ListMissionsRequest::default()).await.unwrap().into_inner();
         if let Some(m) = list.missions.first().filter(|m| m.map_updates >= 150) {
             break m.map_updates;
         }

@@ -513,7 +513,7 @@ async fn play(calls: Vec<Call>) -> Result<(), TestCaseError> {
     // Every acknowledged write is in the store, as the restarted executive sees it.
     let exec = common::TestExecutive::start(&db).await;
     let mut missions = exec.missions();
-    let stored = missions.list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner().missions;
+    let stored = missions.list_missions(pb::ListMissionsRequest::default()).await.unwrap().into_inner().missions;
     prop_assert_eq!(stored.iter().map(|m| m.id).collect::<Vec<_>>(), seen.missions.clone());
     for mission in &stored {
         prop_assert_eq!(mission.map_updates, seen.map_updates[&mission.id]);

@@ -12,6 +12,7 @@ mod common;
 use std::sync::Arc;
 use std::time::Duration;
 
+use prost::Message as _;
 use tonic::Code;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
@@ -333,7 +334,7 @@ async fn a_mission_left_with_countless_pockets_lists_the_largest_and_counts_the_
     assert_eq!(done.leftovers[0].cells, 2, "{:?}", done.leftovers[0]);
     assert!(done.leftovers[1..].iter().all(|l| l.cells == 1));
     assert!(done.leftovers.iter().all(|l| l.reason() == pb::LeftoverReason::Disconnected));
-    let listed = site.operator().list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner();
+    let listed = site.operator().list_missions(pb::ListMissionsRequest::default()).await.unwrap().into_inner();
     assert_eq!(listed.missions, vec![done.clone()]);
     // Kept so across a restart.
     let site = site.restart().await;
@@ -484,6 +485,61 @@ async fn a_mission_holds_at_most_a_thousand_forbidden_regions() {
     operator.forbid_region(forbid(1_000)).await.unwrap();
 }
 
+/// An operator can make a mission about 2 MB (1 000 regions, each with the
+/// longest reason kept, in four-byte characters): three such missions were
+/// one 6 MB answer. ListMissions answers in pages a client with gRPC's
+/// default 4 MB limit reads, and coordctl follows them to list every
+/// mission.
+#[tokio::test]
+async fn missions_are_listed_in_pages_a_client_with_default_limits_reads() {
+    let site = Site::start().await;
+    let mut operator = site.operator();
+    let mut ids = Vec::new();
+    for regions in [1_000, 1_000, 1_000, 0] {
+        let mission = site.mission("nearest", 1000.0, 1000.0).await;
+        let forbid = |i: u32| pb::ForbidRegionRequest {
+            mission_id: mission.id,
+            area: Some(pb::Rect { min_x: 0.1 * f64::from(i % 59), min_y: 0.0, max_x: 5.9, max_y: 0.5 }),
+            actor: "\u{1F916}".repeat(128),
+            reason: "\u{1F6A7}".repeat(500),
+        };
+        for i in 0..regions {
+            operator.forbid_region(forbid(i)).await.unwrap();
+        }
+        ids.push(mission.id);
+    }
+
+    let mut pages = Vec::new();
+    let mut after_id = 0;
+    loop {
+        let page = operator.list_missions(pb::ListMissionsRequest { after_id, limit: 0 }).await.unwrap().into_inner();
+        assert!(page.encoded_len() <= 4 << 20, "a page of {} bytes", page.encoded_len());
+        pages.push(page.missions.iter().map(|m| m.id).collect::<Vec<_>>());
+        if page.next_after_id == 0 {
+            break;
+        }
+        after_id = page.next_after_id;
+    }
+    assert_eq!(pages, vec![vec![ids[0]], vec![ids[1]], vec![ids[2], ids[3]]]);
+    let by_count = operator.list_missions(pb::ListMissionsRequest { after_id: ids[2], limit: 1 }).await.unwrap();
+    let by_count = by_count.into_inner();
+    assert_eq!((by_count.missions.len(), by_count.missions[0].id, by_count.next_after_id), (1, ids[3], 0));
+    let past_the_last = pb::ListMissionsRequest { after_id: u64::MAX, limit: u32::MAX };
+    assert_eq!(operator.list_missions(past_the_last).await.unwrap().into_inner(), Default::default());
+
+    let url = site.exec.url.clone();
+    let coordctl = tokio::task::spawn_blocking(move || {
+        std::process::Command::new(common::binary("coordctl"))
+            .args(["--server", &url, "--token", OPERATOR, "--json", "missions"])
+            .output()
+            .unwrap()
+    });
+    let output = coordctl.await.unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let listed: Vec<serde_json::Value> = serde_json::from_slice(&output.stdout).unwrap();
+    assert_eq!(listed.iter().map(|m| m["id"].as_u64().unwrap()).collect::<Vec<_>>(), ids);
+}
+
 #[tokio::test]
 async fn a_paused_mission_holds_every_robot_until_resumed() {
     let site = Site::start().await;
@@ -565,7 +621,7 @@ async fn tokens_are_checked_and_refused_requests_change_nothing() {
 
     // No token, a wrong token: unauthenticated.
     for token in [None, Some("guess"), Some("rbt_1_0000")] {
-        let status = site.missions(token).list_missions(pb::ListMissionsRequest {}).await.unwrap_err();
+        let status = site.missions(token).list_missions(pb::ListMissionsRequest::default()).await.unwrap_err();
         assert_eq!(status.code(), Code::Unauthenticated, "{token:?}: {status:?}");
         assert!(status.message().contains("token"), "{}", status.message());
         let status = site.fleet(token).heartbeat(heartbeat(a.id, 9.0, 9.0, pb::RobotState::Idle, 0)).await;
@@ -613,7 +669,7 @@ async fn tokens_are_checked_and_refused_requests_change_nothing() {
     assert_eq!(refused.unwrap_err().code(), Code::PermissionDenied);
     // Revoked by taking its line out of the file: refused at once, no restart.
     std::fs::write(&site.tokens, token_line("alice", "operator", OPERATOR)).unwrap();
-    let revoked = kim.list_missions(pb::ListMissionsRequest {}).await.unwrap_err();
+    let revoked = kim.list_missions(pb::ListMissionsRequest::default()).await.unwrap_err();
     assert_eq!(revoked.code(), Code::Unauthenticated);
 
     // The old token stopped working when the robot registered again.
@@ -625,7 +681,7 @@ async fn tokens_are_checked_and_refused_requests_change_nothing() {
     let poses = |r: &pb::ListRobotsResponse| r.robots.iter().map(|r| (r.id, r.pose, r.task_id)).collect::<Vec<_>>();
     assert_eq!(poses(before.get_ref()), poses(after.get_ref()));
     assert_eq!(site.events(mission.id).await.len(), events_before);
-    let missions = site.operator().list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner();
+    let missions = site.operator().list_missions(pb::ListMissionsRequest::default()).await.unwrap().into_inner();
     assert_eq!(missions.missions.len(), 1);
     let paused = missions.missions[0].state();
     assert_eq!(paused, pb::MissionState::Active);

@@ -73,7 +73,7 @@ async fn list(url: &str, tls: Option<&ClientTls>) -> Result<usize, String> {
         .map_err(|e| format!("{e:?}"))?;
     let bearer = exploration_proto::Bearer::new(Some(TOKEN)).unwrap();
     let mut missions = MissionsClient::with_interceptor(channel, bearer);
-    let listed = tokio::time::timeout(deadline, missions.list_missions(pb::ListMissionsRequest {}))
+    let listed = tokio::time::timeout(deadline, missions.list_missions(pb::ListMissionsRequest::default()))
         .await
         .map_err(|_| format!("ListMissions on {url}: no answer in {deadline:?}"))?
         .map_err(|s| s.to_string())?;

@@ -135,7 +135,7 @@ async fn a_full_disk_refuses_writes_keeps_reads_and_loses_nothing() {
     let robots = missions.list_robots(pb::ListRobotsRequest { mission_id: mission.id }).await.unwrap().into_inner();
     assert_eq!(robots.robots[0].last_map_seq, seq);
     let listed: Vec<u64> = missions
-        .list_missions(pb::ListMissionsRequest {})
+        .list_missions(pb::ListMissionsRequest::default())
         .await
         .unwrap()
         .into_inner()
@@ -307,7 +307,7 @@ async fn quotas_hold_when_many_missions_are_created_at_once() {
     // 16 of 20 missions (and no cells left): none of thirty more.
     let results = create_at_once(&exec, 1, 30).await;
     assert!(results.iter().all(|r| *r == Err(Code::ResourceExhausted)), "{results:?}");
-    let listed = missions.list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner().missions;
+    let listed = missions.list_missions(pb::ListMissionsRequest::default()).await.unwrap().into_inner().missions;
     assert_eq!(listed.len(), 16);
     exec.stop().await;
 
@@ -321,7 +321,7 @@ async fn quotas_hold_when_many_missions_are_created_at_once() {
     }
     let results = create_at_once(&exec, 1, 30).await;
     assert_eq!(results.iter().filter(|r| r.is_ok()).count(), 5, "{results:?}");
-    let listed = missions.list_missions(pb::ListMissionsRequest {}).await.unwrap().into_inner().missions;
+    let listed = missions.list_missions(pb::ListMissionsRequest::default()).await.unwrap().into_inner().missions;
     assert_eq!(listed.len(), 10);
     exec.stop().await;
 }
@@ -646,7 +646,7 @@ async fn connections_beyond_the_limit_are_refused_until_one_closes() {
     loop {
         let channel = tonic::transport::Endpoint::from_shared(format!("http://{address}")).unwrap().connect_lazy();
         let mut missions = pb::missions_client::MissionsClient::new(channel);
-        if missions.list_missions(pb::ListMissionsRequest {}).await.is_ok() {
+        if missions.list_missions(pb::ListMissionsRequest::default()).await.is_ok() {
             break;
         }
         assert!(tokio::time::Instant::now() < deadline, "a freed place is given to the next connection");

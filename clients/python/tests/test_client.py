@@ -230,6 +230,17 @@ def test_events_are_read_page_by_page_oldest_first(open_coordinator: Coordinator
         assert [e.id for e in paged] == sorted({e.id for e in paged}), "oldest first, none twice"
 
 
+def test_missions_are_read_page_by_page_lowest_id_first(open_coordinator: Coordinator) -> None:
+    with Executive(open_coordinator.address) as executive:
+        created = [executive.create_mission(f"listed {i}", frame(20, 10), policy="nearest").id for i in range(3)]
+        whole = executive.list_missions()
+        paged = executive.list_missions(page_size=1)
+        assert paged == whole
+        assert [m.id for m in paged][-3:] == created
+        first = executive.missions.ListMissions(pb.ListMissionsRequest(limit=1), metadata=executive.metadata)
+        assert len(first.missions) == 1 and first.next_after_id == first.missions[0].id
+
+
 def shed_by_standing_queue(metrics_url: str) -> float:
     with urllib.request.urlopen(metrics_url, timeout=5) as page:
         for line in page.read().decode().splitlines():

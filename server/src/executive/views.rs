@@ -117,23 +117,58 @@ impl Executive {
 
     /// Every mission, oldest first.
     pub async fn missions(&self) -> Result<Vec<MissionSummary>, Error> {
-        let handles: Vec<_> = self.missions.read().unwrap_or_else(|e| e.into_inner()).values().cloned().collect();
-        let mut out = Vec::with_capacity(handles.len());
-        for handle in handles {
-            out.push(Self::summary(&*handle.lock().await));
+        let mut out = Vec::new();
+        self.missions_after(0, |mission| {
+            out.push(mission);
+            true
+        })
+        .await?;
+        Ok(out)
+    }
+
+    /// The missions with an id above `after`, lowest first, each handed to
+    /// `take` until it declines one. Returns the id of the last mission
+    /// taken when `take` declined one (a page's end), `None` when it took
+    /// every one; so that a page always moves on, `take` should accept the
+    /// first it is offered. Summarising one at a time keeps a page of a
+    /// few large missions from copying every mission's regions first.
+    pub async fn missions_after(
+        &self,
+        after: MissionId,
+        mut take: impl FnMut(MissionSummary) -> bool,
+    ) -> Result<Option<MissionId>, Error> {
+        enum Source {
+            Held(std::sync::Arc<super::planner::MissionCell>),
+            // Another replica holds it: its live figures (robots, known and
+            // frontier cells) are its holder's to give.
+            Stored(Box<MissionRecord>),
         }
+        let mut sources: std::collections::BTreeMap<MissionId, Source> = self
+            .missions
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .range((std::ops::Bound::Excluded(after), std::ops::Bound::Unbounded))
+            .map(|(&id, handle)| (id, Source::Held(handle.clone())))
+            .collect();
         if self.ownership.is_some() {
-            // Those other replicas hold, as stored: their live figures
-            // (robots, known and frontier cells) are their holders' to give.
-            let held: std::collections::BTreeSet<MissionId> = out.iter().map(|m| m.record.id).collect();
             for record in self.store.missions().await? {
-                if !held.contains(&record.id) {
-                    out.push(MissionSummary::stored(record));
+                if record.id > after {
+                    sources.entry(record.id).or_insert(Source::Stored(Box::new(record)));
                 }
             }
-            out.sort_by_key(|m| m.record.id);
         }
-        Ok(out)
+        let mut last_taken = after;
+        for (id, source) in sources {
+            let summary = match source {
+                Source::Held(handle) => Self::summary(&*handle.lock().await),
+                Source::Stored(record) => MissionSummary::stored(*record),
+            };
+            if !take(summary) {
+                return Ok(Some(last_taken));
+            }
+            last_taken = id;
+        }
+        Ok(None)
     }
 
     /// A mission's latest `limit` events, newest first.

@@ -144,8 +144,10 @@ impl Missions for ExplorationService {
         request: Request<pb::ListMissionsRequest>,
     ) -> Result<Response<pb::ListMissionsResponse>, Status> {
         self.caller(&request)?;
-        let missions = self.executive.missions().await?;
-        Ok(Response::new(pb::ListMissionsResponse { missions: missions.iter().map(Into::into).collect() }))
+        let request = request.into_inner();
+        let mut page = convert::MissionPage::new(request.limit);
+        let next = self.executive.missions_after(request.after_id, |mission| page.take(&mission)).await?;
+        Ok(Response::new(page.finish(next)))
     }
 
     #[tracing::instrument(skip_all)]

@@ -28,7 +28,7 @@ pub mod snapshot;
 pub mod sql;
 pub mod sqlite;
 #[cfg(test)]
-mod suite;
+pub(crate) mod suite;
 #[cfg(test)]
 mod tests;
 

@@ -204,8 +204,21 @@ class Executive:
     def mission(self, mission_id: int) -> pb.Mission:
         return self._call("missions", "GetMission", pb.GetMissionRequest(mission_id=mission_id))
 
-    def list_missions(self) -> list[pb.Mission]:
-        return list(self._call("missions", "ListMissions", pb.ListMissionsRequest()).missions)
+    def list_missions(self, *, page_size: int = 0) -> list[pb.Mission]:
+        """Every mission, lowest id first, read a page at a time (at most
+        ``page_size`` missions; 0 lets the executive choose, up to 1000 and
+        4 MB a page)."""
+        missions: list[pb.Mission] = []
+        after_id = 0
+        while True:
+            request = pb.ListMissionsRequest(limit=page_size, after_id=after_id)
+            page = self._call("missions", "ListMissions", request)
+            missions.extend(page.missions)
+            if page.next_after_id == 0:
+                return missions
+            if page.next_after_id <= after_id:
+                raise RuntimeError("the executive's pages of missions do not move on")
+            after_id = page.next_after_id
 
     def robots(self, mission_id: int) -> list[pb.Robot]:
         return list(self._call("missions", "ListRobots", pb.ListRobotsRequest(mission_id=mission_id)).robots)

@@ -129,6 +129,58 @@ impl From<&MissionSummary> for pb::Mission {
     }
 }
 
+/// The most missions a `ListMissions` page holds, and what `limit = 0` asks.
+pub const MOST_MISSIONS_A_PAGE: usize = 1_000;
+
+/// The bytes a `ListMissions` page stays within: gRPC's default message
+/// limit (4 MiB), less room for the rest of the answer, so that a client
+/// that never raised it reads every page. One mission at its largest (1 000
+/// forbidden regions with the longest reason and actor, 1 000 leftovers) is
+/// about 2.6 MB, so every page holds at least one.
+pub const MISSION_PAGE_BYTES: usize = 4_000_000;
+
+/// A `ListMissions` answer, built one mission at a time: the executive may
+/// hold 1 000 missions of up to 2.6 MB each, far past what a client reads
+/// in one message.
+#[derive(Debug)]
+pub struct MissionPage {
+    missions: Vec<pb::Mission>,
+    bytes: usize,
+    limit: usize,
+}
+
+impl MissionPage {
+    /// An empty page of at most `limit` missions (0: [`MOST_MISSIONS_A_PAGE`]).
+    pub fn new(limit: u32) -> Self {
+        let limit = match limit as usize {
+            0 => MOST_MISSIONS_A_PAGE,
+            n => n.min(MOST_MISSIONS_A_PAGE),
+        };
+        Self { missions: Vec::new(), bytes: 0, limit }
+    }
+
+    /// Adds `mission` unless the page is full, in missions or in bytes. The
+    /// first mission is always taken, so that every page moves on.
+    pub fn take(&mut self, mission: &MissionSummary) -> bool {
+        if self.missions.len() >= self.limit {
+            return false;
+        }
+        let mission = pb::Mission::from(mission);
+        let bytes = prost::encoding::message::encoded_len(1, &mission);
+        if !self.missions.is_empty() && self.bytes + bytes > MISSION_PAGE_BYTES {
+            return false;
+        }
+        self.bytes += bytes;
+        self.missions.push(mission);
+        true
+    }
+
+    /// The answer; `next` is where the next page starts after, if one does.
+    pub fn finish(self, next: Option<u64>) -> pb::ListMissionsResponse {
+        pb::ListMissionsResponse { missions: self.missions, next_after_id: next.unwrap_or(0) }
+    }
+}
+
 /// The policy catalogue in proto form.
 pub fn policies() -> pb::ListPoliciesResponse {
     pb::ListPoliciesResponse {
@@ -460,5 +512,65 @@ mod tests {
         let per_cell = segmentation(7, &frame, Some(&stored), LabelForm::PerCell).unwrap();
         assert_eq!(per_cell.labels.len(), frame.len() * 4);
         assert_eq!(runs.labels_per_cell(frame.len()).unwrap(), per_cell.labels_per_cell(frame.len()).unwrap());
+    }
+
+    /// A mission at its largest: 1 000 forbidden regions whose reason and
+    /// actor are as long as kept, in four-byte characters, and 1 000
+    /// leftovers.
+    fn largest_mission(id: u64) -> MissionSummary {
+        use crate::domain::{Leftovers, MOST_LEFTOVERS};
+        use crate::validate::{MAX_FORBIDDEN_REGIONS, MAX_NAME_CHARS, MAX_REASON_CHARS};
+        let region = |i: usize| Region {
+            id: i as u64,
+            mission_id: id,
+            min: Point2::new(0.0, 0.0),
+            max: Point2::new(1.0, 1.0),
+            actor: "\u{1F916}".repeat(MAX_NAME_CHARS),
+            reason: "\u{1F6A7}".repeat(MAX_REASON_CHARS),
+            created_at: Timestamp(i as i64),
+        };
+        let leftover = Leftover { reason: LeftoverReason::TooSmall, cells: 1, position: Point2::new(1.5, -2.5) };
+        let leftovers = Leftovers { listed: vec![leftover; MOST_LEFTOVERS], unlisted_clusters: 9, unlisted_cells: 9 };
+        MissionSummary {
+            record: crate::domain::MissionRecord {
+                id,
+                spec: crate::store::suite::spec(),
+                state: MissionState::Completed,
+                replans: 1,
+                map_updates: 1,
+                paused: false,
+                leftovers,
+                created_at: Timestamp(0),
+            },
+            robots: 1_000,
+            known_cells: 1,
+            frontier_cells: 1,
+            forbidden: (0..MAX_FORBIDDEN_REGIONS).map(region).collect(),
+            given_segmentation: true,
+        }
+    }
+
+    #[test]
+    fn a_page_of_missions_stays_within_what_a_client_reads_and_holds_at_least_one() {
+        let largest = largest_mission(1);
+        let alone = pb::Mission::from(&largest).encoded_len();
+        assert!(alone > MISSION_PAGE_BYTES / 2 && alone < MISSION_PAGE_BYTES, "{alone} bytes");
+
+        let mut page = MissionPage::new(0);
+        assert!(page.take(&largest));
+        assert!(!page.take(&largest_mission(2)), "two of the largest missions fit in one page");
+        let answer = page.finish(Some(1));
+        assert!(answer.encoded_len() <= 4 << 20, "{} bytes", answer.encoded_len());
+        assert_eq!((answer.missions.len(), answer.next_after_id), (1, 1));
+
+        // Small missions fill a page up to its count.
+        let mut small = largest_mission(3);
+        small.forbidden.clear();
+        small.record.leftovers.listed.clear();
+        let mut page = MissionPage::new(5_000);
+        assert_eq!((0..1_001).filter(|_| page.take(&small)).count(), MOST_MISSIONS_A_PAGE);
+        let mut page = MissionPage::new(2);
+        assert_eq!((0..3).filter(|_| page.take(&small)).count(), 2);
+        assert_eq!(page.finish(None).next_after_id, 0);
     }
 }

@@ -5,7 +5,7 @@
 
 mod answers;
 
-pub use answers::{LabelForm, event, frame_to_proto, policies, policy_to_proto, region, segmentation};
+pub use answers::{LabelForm, MissionPage, event, frame_to_proto, policies, policy_to_proto, region, segmentation};
 
 use std::collections::BTreeMap;
 use std::time::Duration;
