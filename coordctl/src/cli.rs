@@ -212,6 +212,13 @@ pub(crate) enum MissionCommand {
         #[arg(long, default_value = "")]
         reason: String,
     },
+    /// Delete a completed or paused mission with its robots, tasks, map and
+    /// history; its place among the executive's missions is freed.
+    Delete {
+        mission: u64,
+        #[arg(long, default_value = "")]
+        reason: String,
+    },
     /// Show the policy, or switch to another one while the mission runs.
     Policy {
         mission: u64,

@@ -383,6 +383,11 @@ async fn mission_command(
             let request = pb::MissionControlRequest { mission_id: mission, actor, reason };
             out.mission(&api.resume_mission(request).await?.into_inner())?;
         }
+        MissionCommand::Delete { mission, reason } => {
+            let request = pb::MissionControlRequest { mission_id: mission, actor, reason };
+            api.delete_mission(request).await?;
+            out.done(&format!("mission {mission} deleted"))?;
+        }
         MissionCommand::Policy { mission, name, params, reason } => {
             let mission = match name {
                 Some(name) => {

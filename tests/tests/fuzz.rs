@@ -299,6 +299,8 @@ enum Call {
     Bids(usize, Vec<pb::Bid>),
     Forbid(usize, Option<pb::Rect>),
     Pause(usize, bool),
+    /// Deletes a mission (after pausing it, when `pause_first`).
+    Delete(usize, bool),
     Policy(usize, u8),
     Override(usize, u8, Option<pb::Point>),
     /// Rooms for a mission: 0 raw label runs from the numbers, 1 runs that
@@ -327,6 +329,7 @@ fn call() -> impl Strategy<Value = Call> {
         1 => (0..8usize, proptest::collection::vec(bid(), 0..4)).prop_map(|(r, b)| Call::Bids(r, b)),
         1 => (0..4usize, proptest::option::of(rect())).prop_map(|(m, r)| Call::Forbid(m, r)),
         1 => (0..4usize, any::<bool>()).prop_map(|(m, p)| Call::Pause(m, p)),
+        1 => (0..4usize, any::<bool>()).prop_map(|(m, p)| Call::Delete(m, p)),
         1 => (0..4usize, any::<u8>()).prop_map(|(m, p)| Call::Policy(m, p)),
         1 => (0..8usize, 0..7u8, point()).prop_map(|(r, a, p)| Call::Override(r, a, p)),
         1 => (0..4usize, 0..3u8, proptest::collection::vec(wild_u32(), 0..6)).prop_map(|(m, k, l)| Call::Rooms(m, k, l)),
@@ -443,6 +446,16 @@ async fn play(calls: Vec<Call>) -> Result<(), TestCaseError> {
                     if pause { missions.pause_mission(request).await } else { missions.resume_mission(request).await };
                 if let Err(s) = answer {
                     expected(&s)?;
+                }
+            }
+            Call::Delete(m, pause_first) => {
+                let request = pb::MissionControlRequest { mission_id: mission_of(&seen, m), ..Default::default() };
+                if pause_first && let Err(s) = missions.pause_mission(request.clone()).await {
+                    expected(&s)?;
+                }
+                match missions.delete_mission(request.clone()).await {
+                    Ok(_) => seen.missions.retain(|&id| id != request.mission_id),
+                    Err(s) => expected(&s)?,
                 }
             }
             Call::Policy(m, p) => {

@@ -13,6 +13,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use prost::Message as _;
+use sqlx::Connection as _;
 use tonic::Code;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
@@ -47,16 +48,17 @@ fn token_line(name: &str, role: &str, token: &str) -> String {
 
 impl Site {
     async fn start() -> Self {
-        Self::start_in(tempfile::tempdir().unwrap()).await
+        Self::start_in(tempfile::tempdir().unwrap(), |_| {}).await
     }
 
     /// The executive stopped, and started again on its database.
     async fn restart(self) -> Self {
         self.exec.stop().await;
-        Self::start_in(self.dir).await
+        Self::start_in(self.dir, |_| {}).await
     }
 
-    async fn start_in(dir: tempfile::TempDir) -> Self {
+    /// An executive on `dir`'s database, its settings changed by `tune`.
+    async fn start_in(dir: tempfile::TempDir, tune: impl FnOnce(&mut coordinator::ExecutiveSettings)) -> Self {
         let (clock, handle) = Clock::manual();
         let tokens = dir.path().join("tokens");
         std::fs::write(&tokens, token_line("alice", "operator", OPERATOR) + &token_line("kim", "viewer", VIEWER))
@@ -64,6 +66,7 @@ impl Site {
         let mut config = coordinator::Config::new(dir.path().join("ops.db"));
         config.operator_tokens_file = Some(tokens.clone());
         config.executive.clock = clock;
+        tune(&mut config.executive);
         Self { exec: TestExecutive::start_with(config).await, clock: handle, tokens, dir }
     }
 
@@ -538,6 +541,95 @@ async fn missions_are_listed_in_pages_a_client_with_default_limits_reads() {
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     let listed: Vec<serde_json::Value> = serde_json::from_slice(&output.stdout).unwrap();
     assert_eq!(listed.iter().map(|m| m["id"].as_u64().unwrap()).collect::<Vec<_>>(), ids);
+}
+
+/// An executive holds a bounded number of missions, and a finished one
+/// kept its place for ever. An operator deletes a paused or completed
+/// mission: it is gone from every answer at once, its robot's token no
+/// longer admits it, its place is free, and after a restart its rows are
+/// purged while the other missions stay.
+#[tokio::test]
+async fn an_operator_deletes_a_stopped_mission_and_frees_its_place() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("ops.db");
+    let site = Site::start_in(dir, |executive| executive.max_missions = 2).await;
+    let gone = site.mission("nearest", 1000.0, 1000.0).await;
+    let (robot, mut fleet) = site.robot(gone.id, "a", 2.5, 1.0).await;
+    fleet.update_map(middle_known(robot.id, 1, 2.5, 1.0)).await.unwrap();
+    site.until(gone.id, "a assigned", |v| v.robots.first().is_some_and(|r| r.task_id != 0)).await;
+    let stays = site.mission("nearest", 1000.0, 1000.0).await;
+    let mut operator = site.operator();
+    let history = pb::MissionControlRequest { mission_id: stays.id, actor: "carol".into(), reason: "drill".into() };
+    operator.pause_mission(history).await.unwrap();
+    let third = || pb::CreateMissionRequest {
+        name: "third".into(),
+        frame: Some(common::frame(60, 20)),
+        policy: Some(pb::PolicySpec { name: "nearest".into(), params: Default::default() }),
+        ..Default::default()
+    };
+    let full = operator.create_mission(third()).await.unwrap_err();
+    assert_eq!(full.code(), Code::ResourceExhausted, "{full:?}");
+
+    let control = pb::MissionControlRequest { mission_id: gone.id, actor: "carol".into(), reason: "done".into() };
+    let running = operator.delete_mission(control.clone()).await.unwrap_err();
+    assert_eq!(running.code(), Code::FailedPrecondition, "{running:?}");
+    assert!(running.message().contains("pause it"), "{running:?}");
+    let denied = site.missions(Some(VIEWER)).delete_mission(control.clone()).await.unwrap_err();
+    assert_eq!(denied.code(), Code::PermissionDenied, "{denied:?}");
+    operator.get_mission(pb::GetMissionRequest { mission_id: gone.id }).await.unwrap();
+
+    let mut watch = operator.watch_mission(pb::WatchMissionRequest { mission_id: gone.id }).await.unwrap().into_inner();
+    watch.message().await.unwrap().unwrap();
+    operator.pause_mission(control.clone()).await.unwrap();
+    operator.delete_mission(control.clone()).await.unwrap();
+    loop {
+        match tokio::time::timeout(Duration::from_secs(20), watch.message()).await.expect("the watch went on") {
+            Ok(Some(_)) => continue,
+            Ok(None) => break,
+            Err(status) => {
+                assert_eq!(status.code(), Code::NotFound, "{status:?}");
+                break;
+            }
+        }
+    }
+    let missing = operator.get_mission(pb::GetMissionRequest { mission_id: gone.id }).await.unwrap_err();
+    assert_eq!(missing.code(), Code::NotFound, "{missing:?}");
+    let again = operator.delete_mission(control).await.unwrap_err();
+    assert_eq!(again.code(), Code::NotFound, "{again:?}");
+    let refused = fleet.heartbeat(heartbeat(robot.id, 2.5, 1.0, pb::RobotState::Idle, 0)).await.unwrap_err();
+    assert_eq!(refused.code(), Code::Unauthenticated, "{refused:?}");
+    let created = operator.create_mission(third()).await.unwrap().into_inner();
+    assert!(created.id > stays.id);
+    let listed = operator.list_missions(pb::ListMissionsRequest::default()).await.unwrap().into_inner().missions;
+    assert_eq!(listed.iter().map(|m| m.id).collect::<Vec<_>>(), vec![stays.id, created.id]);
+
+    // After a restart it stays gone, and the sweeps purge its rows.
+    let site = site.restart().await;
+    site.clock.step(Duration::from_secs(1)).await;
+    let listed = site.operator().list_missions(pb::ListMissionsRequest::default()).await.unwrap().into_inner();
+    assert_eq!(listed.missions.iter().map(|m| m.id).collect::<Vec<_>>(), vec![stays.id, created.id]);
+    let mut raw = sqlx::SqliteConnection::connect(&format!("sqlite:{}", db.display())).await.unwrap();
+    for count in [
+        "SELECT COUNT(*) FROM robots WHERE mission_id = ?",
+        "SELECT COUNT(*) FROM map_patches WHERE mission_id = ?",
+        "SELECT COUNT(*) FROM tasks WHERE mission_id = ?",
+        "SELECT COUNT(*) FROM mission_events WHERE mission_id = ?",
+    ] {
+        let rows: i64 = sqlx::query_scalar(count).bind(gone.id as i64).fetch_one(&mut raw).await.unwrap();
+        assert_eq!(rows, 0, "{count}: the deleted mission's rows");
+    }
+    let purged: i64 = sqlx::query_scalar("SELECT purged FROM missions WHERE id = ?")
+        .bind(gone.id as i64)
+        .fetch_one(&mut raw)
+        .await
+        .unwrap();
+    assert_eq!(purged, 1);
+    let kept: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM mission_events WHERE mission_id = ?")
+        .bind(stays.id as i64)
+        .fetch_one(&mut raw)
+        .await
+        .unwrap();
+    assert!(kept > 0, "the other mission's history stays");
 }
 
 #[tokio::test]

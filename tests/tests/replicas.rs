@@ -403,6 +403,55 @@ async fn replicas_share_the_missions_evenly_as_they_come_and_go() {
     }
 }
 
+/// A mission deleted at its holder is gone for every replica: no other
+/// lists it or claims it, and its rows, lease included, are purged.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_mission_deleted_at_its_holder_is_gone_for_every_replica() {
+    let Some(url) = common::postgres_database("replicas_delete").await else { return };
+    let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
+    let r1 = Replica::spawn("r1", free_port(), &url, "1", "0.25");
+    wait_until_serving(&r1.url(), Duration::from_secs(30)).await;
+    let mut at_r1 = MissionsClient::new(channel_to(&r1));
+    let gone = create_mission(&mut at_r1, 40, 40, "nearest").await;
+    let stays = create_mission(&mut at_r1, 40, 40, "nearest").await;
+    let mut fleet = FleetClient::new(channel_to(&r1));
+    let robot = register(&mut fleet, gone.id, "r", 0.55, 0.55).await;
+    fleet.update_map(update(robot.id, 1, 0.55, 0.55, vec![patch(0, 0, 10, 10, 0.05)])).await.unwrap();
+    let control = exploration_proto::v1::MissionControlRequest { mission_id: gone.id, ..Default::default() };
+    at_r1.pause_mission(control.clone()).await.unwrap();
+    let r2 = Replica::spawn("r2", free_port(), &url, "1", "0.25");
+    wait_until_serving(&r2.url(), Duration::from_secs(30)).await;
+    let mut at_r2 = MissionsClient::new(channel_to(&r2));
+
+    at_r1.delete_mission(control.clone()).await.unwrap();
+    let request = exploration_proto::v1::GetMissionRequest { mission_id: gone.id };
+    let missing = at_r2.get_mission(request).await.unwrap_err();
+    assert_eq!(missing.code(), Code::NotFound, "{missing:?}");
+    let listed = at_r2.list_missions(exploration_proto::v1::ListMissionsRequest::default()).await.unwrap();
+    let listed = listed.into_inner().missions;
+    assert_eq!(listed.iter().map(|m| m.id).collect::<Vec<_>>(), vec![stays.id]);
+    let start = Instant::now();
+    loop {
+        let (robots, leases, purged): (i64, i64, i64) = sqlx::query_as(
+            "SELECT (SELECT COUNT(*) FROM robots WHERE mission_id = $1),
+                    (SELECT COUNT(*) FROM mission_leases WHERE mission_id = $1),
+                    (SELECT purged FROM missions WHERE id = $1)",
+        )
+        .bind(gone.id as i64)
+        .fetch_one(&mut db)
+        .await
+        .unwrap();
+        if (robots, leases, purged) == (0, 0, 1) {
+            break;
+        }
+        assert!(start.elapsed() < Duration::from_secs(20), "not purged: {robots} robots, {leases} leases");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // The other mission is still held, by one of them.
+    assert!(holder(&mut db, stays.id as i64).await.is_some());
+    assert_eq!(holder(&mut db, gone.id as i64).await, None);
+}
+
 fn channel_to(replica: &Replica) -> tonic::transport::Channel {
     tonic::transport::Endpoint::from_shared(replica.url()).unwrap().connect_lazy()
 }

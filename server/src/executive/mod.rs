@@ -268,6 +268,18 @@ impl Executive {
         }
     }
 
+    /// Lets go of a mission: out of the maps, its planner stopped, its slot
+    /// and cells given back. Its robots' streams close once the requests
+    /// under way end.
+    fn forget_mission(&self, id: MissionId) {
+        let cell = self.missions.write().unwrap_or_else(|e| e.into_inner()).remove(&id);
+        self.robot_missions.write().unwrap_or_else(|e| e.into_inner()).retain(|_, m| *m != id);
+        if let Some(cell) = cell {
+            cell.retire();
+            self.usage.release(cell.cells());
+        }
+    }
+
     /// Whether this executive holds (acts for) the mission.
     pub fn holds(&self, id: MissionId) -> bool {
         self.held_mission(id).is_some()
@@ -376,6 +388,9 @@ impl Executive {
     ) -> Result<(RobotRecord, String, bool), Error> {
         let handle = self.mission_handle(mission_id).await?;
         let mut mission = handle.lock().await;
+        if mission.is_deleted() {
+            return Err(Error::NotFound(format!("mission {mission_id} was deleted")));
+        }
         if let Some(existing) = mission.robot_by_name(&spec.name) {
             let mut resumed = existing.clone();
             resumed.capabilities = spec.capabilities;

@@ -69,6 +69,31 @@ impl Executive {
         Ok(Self::summary(&mission))
     }
 
+    /// Deletes a completed or paused mission: once the deletion is durable
+    /// the mission is gone from every answer, its robots' tokens no longer
+    /// admit them and its streams end; the slot and cells it took count no
+    /// more against the executive's limits. Its rows are removed afterwards
+    /// by the sweeps, a batch at a time ([`Self::sweep`]).
+    pub async fn delete_mission(&self, mission_id: MissionId, note: OperatorNote) -> Result<(), Error> {
+        let handle = self.mission_handle(mission_id).await?;
+        let mut mission = handle.lock().await;
+        if mission.is_deleted() {
+            return Err(Error::NotFound(format!("mission {mission_id} was deleted")));
+        }
+        let changes = mission.prepare_delete(Timestamp::now())?;
+        self.commit(&mut mission, changes).await?;
+        mission.mark_deleted();
+        let robots: Vec<RobotId> = mission.robots().map(|r| r.id).collect();
+        drop(mission);
+        self.tokens.write().unwrap_or_else(|e| e.into_inner()).retain(|id, _| !robots.contains(id));
+        match &self.ownership {
+            Some(ownership) => self.stop_holding(ownership, mission_id),
+            None => self.forget_mission(mission_id),
+        }
+        tracing::info!(mission = mission_id, actor = %note.actor, reason = %note.reason, "mission deleted");
+        Ok(())
+    }
+
     /// Forbids a region of a mission: no target is assigned inside.
     pub async fn forbid_region(
         &self,

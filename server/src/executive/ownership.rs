@@ -214,14 +214,9 @@ impl Executive {
     }
 
     /// Stops acting for a mission (see [`Self::give_up`]).
-    fn stop_holding(&self, ownership: &Ownership, id: MissionId) {
+    pub(super) fn stop_holding(&self, ownership: &Ownership, id: MissionId) {
         ownership.held().remove(&id);
-        let cell = self.missions.write().unwrap_or_else(|e| e.into_inner()).remove(&id);
-        self.robot_missions.write().unwrap_or_else(|e| e.into_inner()).retain(|_, m| *m != id);
-        if let Some(cell) = cell {
-            cell.retire();
-            self.usage.release(cell.cells());
-        }
+        self.forget_mission(id);
     }
 
     /// Releases the leases of the missions held beyond `fair`, the newest

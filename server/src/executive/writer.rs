@@ -89,6 +89,10 @@ impl Writer {
     }
 
     async fn queue(&self, mission: &mut Mission, mut changes: Changeset) -> Result<Queued, Error> {
+        // A request or plan that waited for the mission while it was deleted.
+        if mission.is_deleted() {
+            return Err(Error::NotFound(format!("mission {} was deleted", mission.record().id)));
+        }
         changes.fence = mission.fence();
         let generation = mission.generation();
         let asked = Instant::now();

@@ -298,6 +298,19 @@ impl Missions for ExplorationService {
     }
 
     #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
+    async fn delete_mission(
+        &self,
+        request: Request<pb::MissionControlRequest>,
+    ) -> Result<Response<pb::DeleteMissionResponse>, Status> {
+        let caller = self.operator(&request, "deleting a mission")?;
+        let r = request.into_inner();
+        let id = required_id(r.mission_id, "mission_id")?;
+        let note = convert::operator_note(&caller, r.actor, r.reason)?;
+        self.executive.delete_mission(id, note).await?;
+        Ok(Response::new(pb::DeleteMissionResponse {}))
+    }
+
+    #[tracing::instrument(skip_all, fields(mission = request.get_ref().mission_id))]
     async fn resume_mission(
         &self,
         request: Request<pb::MissionControlRequest>,

@@ -432,6 +432,10 @@ pub struct Changeset {
     /// folds, oldest first: the log shrinks a little at a time, never in
     /// one long write that every other changeset would wait behind.
     pub forget_folded: Option<(MissionId, u32)>,
+    /// A mission an operator deleted: hidden from every read at once, its
+    /// robots' tokens void; its rows are removed later, a few at a time
+    /// ([`Store::purge_deleted`]).
+    pub deleted: Option<MissionId>,
     /// When.
     pub at: Option<Timestamp>,
 }
@@ -457,6 +461,7 @@ impl Changeset {
             && self.bids.is_none()
             && self.snapshot.is_none()
             && self.forget_folded.is_none()
+            && self.deleted.is_none()
     }
 }
 
@@ -633,6 +638,12 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     async fn commit(&self, changes: Changeset) -> Result<Changeset, StoreError> {
         self.submit(changes, None).await?.durable().await
     }
+
+    /// Removes at most about `limit` rows of one deleted mission (see
+    /// [`Changeset::deleted`]), in one short transaction so that other
+    /// writes do not wait behind a large mission's removal. Returns whether
+    /// it removed anything: `false` once no deleted mission has rows left.
+    async fn purge_deleted(&self, limit: u32) -> Result<bool, StoreError>;
 
     /// Writes a consistent copy of the whole store, taken while it is in
     /// use, to a new file at `path`.

@@ -256,6 +256,7 @@ async fn a_changeset_round_trips(db: TestDb) {
             fence: None,
             snapshot: None,
             forget_folded: None,
+            deleted: None,
             at: Some(Timestamp(3_000)),
         })
         .await
@@ -331,6 +332,42 @@ async fn a_changeset_round_trips(db: TestDb) {
     store.commit(cleared).await.unwrap();
     assert_eq!(store.given_segmentation(mission.id).await.unwrap(), None);
     assert_eq!(store.max_task_id().await.unwrap(), 7);
+
+    // Deleted, beside a mission that stays: hidden at once, its robot's
+    // token void, then purged a batch at a time down to its own row.
+    let kept = store.create_mission(&spec(), Timestamp(5_000)).await.unwrap();
+    let keeper =
+        store.create_robot(kept.id, &robot_spec("r1"), &|_| HASH.to_owned(), Timestamp(5_000), None).await.unwrap();
+    let kept_patch = LoggedPatch { robot_id: keeper.id, seq: 1, patch: Arc::new(patch.clone()) };
+    let kept_event = note(kept.id, 5_000, "stays".into());
+    store.commit(Changeset { patches: vec![kept_patch], ..kept_event }).await.unwrap();
+    store.commit(Changeset { deleted: Some(mission.id), ..Changeset::default() }).await.unwrap();
+    assert_eq!(store.missions().await.unwrap().iter().map(|m| m.id).collect::<Vec<_>>(), vec![kept.id]);
+    assert_eq!(store.mission(mission.id).await.unwrap(), None);
+    assert_eq!(store.robot_tokens().await.unwrap(), vec![(keeper.id, HASH.to_owned())]);
+    assert_eq!(store.unclaimed(Timestamp(6_000), Duration::ZERO).await.unwrap(), vec![kept.id]);
+    let mut batches = 0;
+    while store.purge_deleted(1).await.unwrap() {
+        batches += 1;
+        assert!(batches < 100, "the purge does not end");
+    }
+    // A patch, a task, an event, then the rest with the robot.
+    assert_eq!(batches, 4);
+    let deleted = &missions[0];
+    assert!(store.robots(deleted).await.unwrap().is_empty());
+    assert!(store.stored_map(deleted, None).await.unwrap().patches.is_empty());
+    assert!(store.tasks(TaskFilter::mission(mission.id, 10)).await.unwrap().is_empty());
+    assert!(store.events(mission.id, 0, u32::MAX).await.unwrap().is_empty());
+    assert_eq!(store.segmentation(mission.id).await.unwrap(), None);
+    assert!(store.blacklist(mission.id).await.unwrap().is_empty());
+    assert!(store.forbidden_regions(mission.id).await.unwrap().is_empty());
+    assert!(store.bids(robot.id).await.unwrap().is_empty());
+    assert_eq!(store.robots(&kept).await.unwrap(), vec![keeper]);
+    assert_eq!(store.stored_map(&kept, None).await.unwrap().patches.len(), 1);
+    assert_eq!(store.events(kept.id, 0, u32::MAX).await.unwrap().len(), 1);
+    // The deleted mission's identity is not given again.
+    let next = store.create_mission(&spec(), Timestamp(7_000)).await.unwrap();
+    assert!(next.id > kept.id, "{} after {}", next.id, kept.id);
 }
 
 /// A patch sent as ROS's occupancy bytes is kept as those bytes, and one

@@ -148,6 +148,8 @@ pub(crate) struct Mission {
     /// The lease this replica holds the mission by, when replicas share the
     /// database: every changeset carries it (see [`crate::store::lease`]).
     fence: Option<Fence>,
+    /// Deleted by an operator: nothing more of it is written.
+    deleted: bool,
 }
 
 impl Mission {
@@ -188,6 +190,7 @@ impl Mission {
             last_commit: None,
             generation: 0,
             fence: None,
+            deleted: false,
             record,
         };
         for robot in robots {
@@ -219,6 +222,18 @@ impl Mission {
     /// The lease this replica holds the mission by, if replicas share the database.
     pub(crate) fn fence(&self) -> Option<Fence> {
         self.fence
+    }
+
+    /// Whether an operator deleted it (see [`Self::prepare_delete`]).
+    pub(crate) fn is_deleted(&self) -> bool {
+        self.deleted
+    }
+
+    /// Its deletion is durable: nothing more of it may be written.
+    pub(crate) fn mark_deleted(&mut self) {
+        self.deleted = true;
+        // Its watchers look again, and are told it is gone.
+        self.changed.send_modify(|v| *v += 1);
     }
 
     /// This replica claimed the mission with `fence`.

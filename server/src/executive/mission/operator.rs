@@ -12,7 +12,8 @@ use exploration::policy::PolicyConfig;
 
 use super::{Mission, TaskDraft, transition};
 use crate::domain::{
-    Actor, MissionEvent, OperatorNote, Override, Region, RobotId, Rooms, TaskKind, TaskRecord, TaskState, Timestamp,
+    Actor, MissionEvent, MissionState, OperatorNote, Override, Region, RobotId, Rooms, TaskKind, TaskRecord, TaskState,
+    Timestamp,
 };
 use crate::error::Error;
 use crate::store::Changeset;
@@ -213,6 +214,19 @@ impl Mission {
     }
 
     /// Describes pausing (`pause`) or resuming the mission.
+    /// Deletes the mission, once no robot is sent anywhere: it must have
+    /// completed, or be paused. Its history goes with it; the deletion
+    /// itself is logged (an event would be purged with the rest).
+    pub(crate) fn prepare_delete(&self, now: Timestamp) -> Result<Changeset, Error> {
+        let id = self.record.id;
+        if self.record.state == MissionState::Active && !self.record.paused {
+            return Err(Error::FailedPrecondition(format!(
+                "mission {id} is active: pause it (PauseMission) or let it complete before deleting it"
+            )));
+        }
+        Ok(Changeset { deleted: Some(id), at: Some(now), ..Changeset::default() })
+    }
+
     pub(crate) fn prepare_pause(&self, pause: bool, note: &OperatorNote, now: Timestamp) -> Result<Changeset, Error> {
         let id = self.record.id;
         if pause == self.record.paused {

@@ -105,7 +105,7 @@ impl<B: Backend> SqlStore<B> {
     ) -> Result<Vec<MissionId>, StoreError> {
         let select = Statement::new(
             "SELECT m.id AS n FROM missions m LEFT JOIN mission_leases l ON l.mission_id = m.id
-             WHERE l.mission_id IS NULL OR l.expires_at < $1 ORDER BY m.id",
+             WHERE m.deleted_at IS NULL AND (l.mission_id IS NULL OR l.expires_at < $1) ORDER BY m.id",
         );
         let rows = self.backend.fetch_all(select.int(claimable_before(now, grace))).await?;
         rows.iter().map(|row| rows::identity(row, "missions", "n")).collect()
@@ -126,7 +126,7 @@ impl<B: Backend> SqlStore<B> {
         .int(until(now, period));
         let count = Statement::new(
             "SELECT (SELECT COUNT(*) FROM replicas WHERE expires_at > $1) AS replicas,
-                    (SELECT COUNT(*) FROM missions) AS missions",
+                    (SELECT COUNT(*) FROM missions WHERE deleted_at IS NULL) AS missions",
         )
         .int(now.millis());
         // Replicas gone for a day are forgotten (on Kubernetes every pod

@@ -202,12 +202,13 @@ impl<B: Backend> Store for SqlStore<B> {
     }
 
     async fn missions(&self) -> Result<Vec<MissionRecord>, StoreError> {
-        let rows = self.backend.fetch_all(Statement::new("SELECT * FROM missions ORDER BY id")).await?;
+        let select = Statement::new("SELECT * FROM missions WHERE deleted_at IS NULL ORDER BY id");
+        let rows = self.backend.fetch_all(select).await?;
         rows.iter().map(rows::mission_from_row).collect()
     }
 
     async fn mission(&self, id: MissionId) -> Result<Option<MissionRecord>, StoreError> {
-        let select = Statement::new("SELECT * FROM missions WHERE id = $1").int(id as i64);
+        let select = Statement::new("SELECT * FROM missions WHERE id = $1 AND deleted_at IS NULL").int(id as i64);
         self.backend.fetch_optional(select).await?.as_ref().map(rows::mission_from_row).transpose()
     }
 
@@ -289,6 +290,18 @@ impl<B: Backend> Store for SqlStore<B> {
 
     async fn reserve_id_block(&self, owner: &str, now: Timestamp) -> Result<u64, StoreError> {
         self.new_id_block(owner, now).await
+    }
+
+    async fn purge_deleted(&self, limit: u32) -> Result<bool, StoreError> {
+        let select = Statement::new("SELECT MIN(id) AS n FROM missions WHERE deleted_at IS NOT NULL AND purged = 0");
+        let mission_id = self.number(select, "missions: a deleted mission's id").await?;
+        if mission_id == 0 {
+            return Ok(false);
+        }
+        let mut tx = self.backend.begin_write().await?;
+        write::purge_step(&mut tx, mission_id, limit).await?;
+        tx.commit().await?;
+        Ok(true)
     }
 
     async fn robot_tokens(&self) -> Result<Vec<(RobotId, String)>, StoreError> {

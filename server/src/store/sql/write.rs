@@ -355,6 +355,62 @@ async fn body(tx: &mut impl Transaction, changes: &Changeset, now: Timestamp) ->
     if let Some((mission_id, limit)) = changes.forget_folded {
         forget_folded(tx, mission_id, limit).await?;
     }
+    if let Some(mission_id) = changes.deleted {
+        mark_deleted(tx, mission_id, now).await?;
+    }
+    Ok(())
+}
+
+/// Hides a mission from every read and voids its robots' tokens; its rows
+/// are purged later ([`purge_step`]).
+async fn mark_deleted(tx: &mut impl Transaction, mission_id: MissionId, now: Timestamp) -> Result<(), StoreError> {
+    let hide = Statement::new("UPDATE missions SET deleted_at = $1 WHERE id = $2 AND deleted_at IS NULL");
+    tx.execute(hide.int(now.millis()).int(mission_id as i64)).await?;
+    let void = Statement::new("UPDATE robots SET token_sha256 = NULL WHERE mission_id = $1");
+    tx.execute(void.int(mission_id as i64)).await?;
+    Ok(())
+}
+
+/// Removes one batch of at most `limit` rows (of the largest tables; the
+/// others at the end, at most a few per robot) of deleted mission
+/// `mission_id`, children before their parents; the last batch marks the
+/// mission purged.
+pub(super) async fn purge_step(tx: &mut impl Transaction, mission_id: MissionId, limit: u32) -> Result<(), StoreError> {
+    let id = mission_id as i64;
+    let limit = i64::from(limit.max(1));
+    let patches = Statement::new(
+        "DELETE FROM map_patches WHERE id IN (SELECT id FROM map_patches WHERE mission_id = $1 ORDER BY id LIMIT $2)",
+    );
+    if tx.execute(patches.int(id).int(limit)).await? > 0 {
+        return Ok(());
+    }
+    let some_tasks = "(SELECT id FROM tasks WHERE mission_id = $1 ORDER BY id LIMIT $2)";
+    let transitions = Statement::new(format!("DELETE FROM task_transitions WHERE task_id IN {some_tasks}"));
+    tx.execute(transitions.int(id).int(limit)).await?;
+    let tasks = Statement::new(format!("DELETE FROM tasks WHERE id IN {some_tasks}"));
+    if tx.execute(tasks.int(id).int(limit)).await? > 0 {
+        return Ok(());
+    }
+    let events = Statement::new(
+        "DELETE FROM mission_events WHERE id IN
+             (SELECT id FROM mission_events WHERE mission_id = $1 ORDER BY id LIMIT $2)",
+    );
+    if tx.execute(events.int(id).int(limit)).await? > 0 {
+        return Ok(());
+    }
+    for sql in [
+        "DELETE FROM bids WHERE robot_id IN (SELECT id FROM robots WHERE mission_id = $1)",
+        "DELETE FROM blacklist WHERE robot_id IN (SELECT id FROM robots WHERE mission_id = $1)",
+        "DELETE FROM forbidden_regions WHERE mission_id = $1",
+        "DELETE FROM segmentations WHERE mission_id = $1",
+        "DELETE FROM given_segmentations WHERE mission_id = $1",
+        "DELETE FROM map_snapshots WHERE mission_id = $1",
+        "DELETE FROM mission_leases WHERE mission_id = $1",
+        "DELETE FROM robots WHERE mission_id = $1",
+        "UPDATE missions SET purged = 1 WHERE id = $1",
+    ] {
+        tx.execute(Statement::new(sql).int(id)).await?;
+    }
     Ok(())
 }
 
