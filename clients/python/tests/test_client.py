@@ -241,6 +241,26 @@ def test_missions_are_read_page_by_page_lowest_id_first(open_coordinator: Coordi
         assert len(first.missions) == 1 and first.next_after_id == first.missions[0].id
 
 
+def test_a_mission_is_paused_then_deleted_with_its_robots(open_coordinator: Coordinator) -> None:
+    with Executive(open_coordinator.address) as executive:
+        mission = executive.create_mission("short-lived", frame(20, 10), policy="nearest")
+        robot = executive.register_robot(mission.id, "r1", (0.5, 0.5, 0.0))
+        with pytest.raises(grpc.RpcError) as running:
+            executive.delete_mission(mission.id, reason="too soon")
+        assert running.value.code() == grpc.StatusCode.FAILED_PRECONDITION
+        assert executive.pause_mission(mission.id, reason="done").state == pb.MISSION_STATE_PAUSED
+        executive.delete_mission(mission.id, reason="done")
+        assert mission.id not in [m.id for m in executive.list_missions()]
+        with pytest.raises(grpc.RpcError) as gone:
+            executive.mission(mission.id)
+        assert gone.value.code() == grpc.StatusCode.NOT_FOUND
+        with pytest.raises(grpc.RpcError) as refused:
+            robot.heartbeat((0.5, 0.5, 0.0), "idle")
+        # This executive checks no token: the robot is simply gone.
+        assert refused.value.code() == grpc.StatusCode.NOT_FOUND
+        robot.close()
+
+
 def shed_by_standing_queue(metrics_url: str) -> float:
     with urllib.request.urlopen(metrics_url, timeout=5) as page:
         for line in page.read().decode().splitlines():

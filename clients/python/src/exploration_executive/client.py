@@ -295,6 +295,23 @@ class Executive:
             request.cancel.SetInParent()
         return self._call("missions", "OverrideRobot", request)
 
+    def pause_mission(self, mission_id: int, *, actor: str = "", reason: str = "") -> pb.Mission:
+        """Every robot holds where it is until :meth:`resume_mission`."""
+        request = pb.MissionControlRequest(mission_id=mission_id, actor=actor, reason=reason)
+        return self._call("missions", "PauseMission", request, idempotent=False)
+
+    def resume_mission(self, mission_id: int, *, actor: str = "", reason: str = "") -> pb.Mission:
+        """Robots get targets again."""
+        request = pb.MissionControlRequest(mission_id=mission_id, actor=actor, reason=reason)
+        return self._call("missions", "ResumeMission", request, idempotent=False)
+
+    def delete_mission(self, mission_id: int, *, actor: str = "", reason: str = "") -> None:
+        """Deletes a completed or paused mission with its robots, tasks, map
+        and history (FAILED_PRECONDITION while it runs), freeing its place
+        among the executive's missions."""
+        request = pb.MissionControlRequest(mission_id=mission_id, actor=actor, reason=reason)
+        self._call("missions", "DeleteMission", request, idempotent=False)
+
     # Robots ---------------------------------------------------------------
 
     def register_robot(
