@@ -365,7 +365,8 @@ async fn a_changeset_round_trips(db: TestDb) {
     assert_eq!(store.robots(&kept).await.unwrap(), vec![keeper]);
     assert_eq!(store.stored_map(&kept, None).await.unwrap().patches.len(), 1);
     assert_eq!(store.events(kept.id, 0, u32::MAX).await.unwrap().len(), 1);
-    // The deleted mission's identity is not given again.
+    // The deleted mission's identities are not given again.
+    assert_eq!((store.max_task_id().await.unwrap(), store.max_region_id().await.unwrap()), (7, 4));
     let next = store.create_mission(&spec(), Timestamp(7_000)).await.unwrap();
     assert!(next.id > kept.id, "{} after {}", next.id, kept.id);
 }

@@ -330,7 +330,12 @@ impl<B: Backend> Store for SqlStore<B> {
     }
 
     async fn max_region_id(&self) -> Result<u64, StoreError> {
-        self.number(Statement::new("SELECT MAX(id) AS n FROM forbidden_regions"), "MAX(forbidden_regions.id)").await
+        // With those of purged missions, which are never given again.
+        let select = Statement::new(
+            "SELECT MAX(n) AS n FROM
+                 (SELECT MAX(id) AS n FROM forbidden_regions UNION ALL SELECT MAX(last_region_id) FROM missions) ids",
+        );
+        self.number(select, "MAX(forbidden_regions.id)").await
     }
 
     async fn robots(&self, mission: &MissionRecord) -> Result<Vec<RobotRecord>, StoreError> {
@@ -411,7 +416,11 @@ impl<B: Backend> Store for SqlStore<B> {
     }
 
     async fn max_task_id(&self) -> Result<TaskId, StoreError> {
-        self.number(Statement::new("SELECT MAX(id) AS n FROM tasks"), "MAX(tasks.id)").await
+        // With those of purged missions, which are never given again.
+        let select = Statement::new(
+            "SELECT MAX(n) AS n FROM (SELECT MAX(id) AS n FROM tasks UNION ALL SELECT MAX(last_task_id) FROM missions) ids",
+        );
+        self.number(select, "MAX(tasks.id)").await
     }
 
     async fn bids(&self, robot_id: RobotId) -> Result<Vec<Bid>, StoreError> {

@@ -362,9 +362,15 @@ async fn body(tx: &mut impl Transaction, changes: &Changeset, now: Timestamp) ->
 }
 
 /// Hides a mission from every read and voids its robots' tokens; its rows
-/// are purged later ([`purge_step`]).
+/// are purged later ([`purge_step`]), the largest task and region
+/// identities it gave kept on its row.
 async fn mark_deleted(tx: &mut impl Transaction, mission_id: MissionId, now: Timestamp) -> Result<(), StoreError> {
-    let hide = Statement::new("UPDATE missions SET deleted_at = $1 WHERE id = $2 AND deleted_at IS NULL");
+    let hide = Statement::new(
+        "UPDATE missions SET deleted_at = $1,
+                last_task_id = (SELECT MAX(id) FROM tasks WHERE mission_id = $2),
+                last_region_id = (SELECT MAX(id) FROM forbidden_regions WHERE mission_id = $2)
+         WHERE id = $2 AND deleted_at IS NULL",
+    );
     tx.execute(hide.int(now.millis()).int(mission_id as i64)).await?;
     let void = Statement::new("UPDATE robots SET token_sha256 = NULL WHERE mission_id = $1");
     tx.execute(void.int(mission_id as i64)).await?;
