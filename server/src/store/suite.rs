@@ -365,6 +365,11 @@ async fn a_changeset_round_trips(db: TestDb) {
     assert_eq!(store.robots(&kept).await.unwrap(), vec![keeper]);
     assert_eq!(store.stored_map(&kept, None).await.unwrap().patches.len(), 1);
     assert_eq!(store.events(kept.id, 0, u32::MAX).await.unwrap().len(), 1);
+    // A fold the compactor made before the deletion leaves nothing behind.
+    let late =
+        MapSnapshot { mission_id: mission.id, through_patch_id: 1, folded: 1, bytes: vec![1; 64], raw_bytes: 64 };
+    store.commit(Changeset { snapshot: Some(late), ..Changeset::default() }).await.unwrap();
+    assert!(store.stored_map(deleted, None).await.unwrap().snapshot.is_none());
     // The deleted mission's identities are not given again.
     assert_eq!((store.max_task_id().await.unwrap(), store.max_region_id().await.unwrap()), (7, 4));
     let next = store.create_mission(&spec(), Timestamp(7_000)).await.unwrap();

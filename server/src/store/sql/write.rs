@@ -116,9 +116,11 @@ async fn write_patches(tx: &mut impl Transaction, patches: &[(&LoggedPatch, Time
 /// Replaces a mission's map snapshot by a newer one. An older snapshot
 /// than the stored one changes nothing.
 async fn write_snapshot(tx: &mut impl Transaction, snapshot: &MapSnapshot, now: Timestamp) -> Result<(), StoreError> {
+    // The compactor folds outside the mission's lock: a fold of a mission
+    // deleted meanwhile must not leave a snapshot that no purge removes.
     let upsert = Statement::new(
         "INSERT INTO map_snapshots (mission_id, through_patch_id, folded, state, raw_bytes, taken_at)
-         VALUES ($1, $2, $3, $4, $5, $6)
+         SELECT $1, $2, $3, $4, $5, $6 FROM missions WHERE id = $1 AND deleted_at IS NULL
          ON CONFLICT (mission_id) DO UPDATE SET through_patch_id = excluded.through_patch_id,
              folded = excluded.folded, state = excluded.state, raw_bytes = excluded.raw_bytes,
              taken_at = excluded.taken_at
