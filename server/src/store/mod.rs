@@ -532,7 +532,7 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// Claims a mission for `claimant` until `now + period`, with the next
     /// fencing token: if nobody ever claimed it, if its lease ran out more
     /// than `grace` before `now`, or if `claimant` held it (a replica that
-    /// restarted). `None` when another replica holds it.
+    /// restarted). `None` when another replica holds it, or it was deleted.
     async fn claim(
         &self,
         mission_id: MissionId,

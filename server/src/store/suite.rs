@@ -346,6 +346,9 @@ async fn a_changeset_round_trips(db: TestDb) {
     assert_eq!(store.mission(mission.id).await.unwrap(), None);
     assert_eq!(store.robot_tokens().await.unwrap(), vec![(keeper.id, HASH.to_owned())]);
     assert_eq!(store.unclaimed(Timestamp(6_000), Duration::ZERO).await.unwrap(), vec![kept.id]);
+    let a = claimant("a");
+    let claim = store.claim(mission.id, &a, Timestamp(6_000), Duration::from_secs(5), Duration::ZERO).await;
+    assert_eq!(claim.unwrap(), None, "a deleted mission was claimed");
     let mut batches = 0;
     while store.purge_deleted(1).await.unwrap() {
         batches += 1;

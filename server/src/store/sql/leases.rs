@@ -50,7 +50,8 @@ impl<B: Backend> SqlStore<B> {
         grace: Duration,
     ) -> Result<Option<Lease>, StoreError> {
         let claim = Statement::new(
-            "INSERT INTO mission_leases (mission_id, owner, address, token, expires_at) VALUES ($1, $2, $3, 1, $4)
+            "INSERT INTO mission_leases (mission_id, owner, address, token, expires_at)
+             SELECT $1, $2, $3, 1, $4 FROM missions WHERE id = $1 AND deleted_at IS NULL
              ON CONFLICT (mission_id) DO UPDATE SET owner = excluded.owner, address = excluded.address,
                  token = mission_leases.token + 1, expires_at = excluded.expires_at
              WHERE mission_leases.expires_at < $5 OR mission_leases.owner = $2
