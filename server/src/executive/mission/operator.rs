@@ -213,7 +213,6 @@ impl Mission {
         })
     }
 
-    /// Describes pausing (`pause`) or resuming the mission.
     /// Deletes the mission, once no robot is sent anywhere: it must have
     /// completed, or be paused. Its history goes with it; the deletion
     /// itself is logged (an event would be purged with the rest).
@@ -227,6 +226,7 @@ impl Mission {
         Ok(Changeset { deleted: Some(id), at: Some(now), ..Changeset::default() })
     }
 
+    /// Describes pausing (`pause`) or resuming the mission.
     pub(crate) fn prepare_pause(&self, pause: bool, note: &OperatorNote, now: Timestamp) -> Result<Changeset, Error> {
         let id = self.record.id;
         if pause == self.record.paused {
