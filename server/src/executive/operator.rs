@@ -77,15 +77,20 @@ impl Executive {
     pub async fn delete_mission(&self, mission_id: MissionId, note: OperatorNote) -> Result<(), Error> {
         let handle = self.mission_handle(mission_id).await?;
         let mut mission = handle.lock().await;
-        if mission.is_deleted() {
-            return Err(Error::NotFound(format!("mission {mission_id} was deleted")));
-        }
         let changes = mission.prepare_delete(Timestamp::now())?;
+        // A second deletion that waited for the lock is refused here, with
+        // NOT_FOUND, like every write to a deleted mission.
         self.commit(&mut mission, changes).await?;
         mission.mark_deleted();
         let robots: Vec<RobotId> = mission.robots().map(|r| r.id).collect();
         drop(mission);
-        self.tokens.write().unwrap_or_else(|e| e.into_inner()).retain(|id, _| !robots.contains(id));
+        // One removal per robot: the map holds every mission's robots, and
+        // auth waits while it is locked.
+        let mut tokens = self.tokens.write().unwrap_or_else(|e| e.into_inner());
+        for robot in robots {
+            tokens.remove(&robot);
+        }
+        drop(tokens);
         match &self.ownership {
             Some(ownership) => self.stop_holding(ownership, mission_id),
             None => self.forget_mission(mission_id),
